@@ -1,0 +1,45 @@
+"""The paper's reduced linear balancing models (Yoshida, Higeta & Watanabe 2011, section 2).
+
+Single balancer (eq. bormann04:TM) and two balancers coupled through a rigid
+rod between the stick tips (eq. sss08:TM), under time-delayed feedback with a
+white-noise random gain R_i(t) = 1 + nu*xi_i(t).
+"""
+
+from .lyapunov import CriticalGain, LyapunovResult, critical_gain, lyapunov, mean_ci95
+from .noise import ArrayNoise, GainNoise, random_gain
+from .params import PAPER, BalanceParams, ParameterError
+from .schema import COMMON_FIELDS, UNITS, Trajectory
+from .simulate import n_controllers, simulate
+from .stability import (
+    characteristic_function,
+    characteristic_roots,
+    delay_system,
+    discrete_exponent,
+    rightmost_root,
+    stability_region,
+)
+
+__all__ = [
+    "COMMON_FIELDS",
+    "PAPER",
+    "UNITS",
+    "ArrayNoise",
+    "BalanceParams",
+    "CriticalGain",
+    "GainNoise",
+    "LyapunovResult",
+    "ParameterError",
+    "Trajectory",
+    "characteristic_function",
+    "characteristic_roots",
+    "critical_gain",
+    "delay_system",
+    "discrete_exponent",
+    "lyapunov",
+    "mean_ci95",
+    "n_controllers",
+    "random_gain",
+    "rightmost_root",
+    "simulate",
+    "stability_region",
+]

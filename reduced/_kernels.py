@@ -1,0 +1,195 @@
+"""Compiled hot loops of the reduced models (numba, cached, GIL released).
+
+One kernel covers the single model (C = 1, eq. bormann04:TM) and the coupled
+model (C = 2, eq. sss08:TM): C controllers whose bases q_Mi are joined through a
+common tip q_T,
+
+    q_T''  + gamma q_T'  = (alpha / C) * sum_i e_i(t),       e_i = q_T - q_Mi
+    q_Mi'' + gamma q_Mi' = beta * R_i(t) * e_i(t - tau),
+
+and for C = 2 the first line is the paper's 2 q_T'' + 2 gamma q_T' = alpha (e_1 + e_2).
+
+The delay is a ring buffer ``hist[r, i, :]`` of the last d = tau/dt values of
+e_i.  At step n the slot ``p`` holds e_i at step n - d; it is read, then
+overwritten with e_i at step n.  The random gain over step n is
+R_{i,n} = 1 + noise_scale * xi[r, n, i], noise_scale = nu / sqrt(dt).
+
+Steppers (``semi_implicit``):
+  * True: semi-implicit Euler as in MuJoCo's ``Euler`` integrator,
+    v <- v + dt*a(x, v);  x <- x + dt*v(new).
+  * False: explicit Euler–Maruyama, x <- x + dt*v;  v <- v + dt*a(x, v).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def advance_positions(
+    xi: np.ndarray,
+    state: np.ndarray,
+    hist: np.ndarray,
+    pos: int,
+    alpha: float,
+    beta: float,
+    gamma: float,
+    noise_scale: float,
+    dt: float,
+    semi_implicit: bool,
+    n0: int,
+    every: int,
+    rec: np.ndarray,
+) -> int:
+    """Advance absolute positions over ``xi.shape[1]`` steps.
+
+    Parameters
+    ----------
+    xi : (nb, n, C) standard normal draws for steps n0 .. n0+n-1.
+    state : (nb, 2 + 2C) [q_T, v_T, q_M1, v_M1, ...], updated in place.
+    hist : (nb, C, d) ring buffer of past balancing errors, updated in place.
+    pos : ring-buffer slot holding e at step n0 - d (same for every realisation).
+    n0, every : global index of the first step; a sample is recorded *before*
+        every step whose global index is a multiple of ``every``.
+    rec : (nb, S, C, 4) output samples [tip pos, tip vel, base pos, base vel];
+        sample j holds global step ``(ceil(n0/every) + j) * every``.
+
+    Returns
+    -------
+    The ring-buffer slot for the next call.
+    """
+    nb, n, nc = xi.shape
+    d = hist.shape[2]
+    rec_start = (n0 + every - 1) // every
+    nrec = rec.shape[1]
+    p_out = pos
+    for r in range(nb):
+        q_t = state[r, 0]
+        v_t = state[r, 1]
+        p = pos
+        for k in range(n):
+            nk = n0 + k
+            if nk % every == 0:
+                j = nk // every - rec_start
+                if j < nrec:
+                    for i in range(nc):
+                        rec[r, j, i, 0] = q_t
+                        rec[r, j, i, 1] = v_t
+                        rec[r, j, i, 2] = state[r, 2 + 2 * i]
+                        rec[r, j, i, 3] = state[r, 3 + 2 * i]
+            esum = 0.0
+            for i in range(nc):
+                q_m = state[r, 2 + 2 * i]
+                v_m = state[r, 3 + 2 * i]
+                e = q_t - q_m
+                esum += e
+                e_delayed = hist[r, i, p]
+                hist[r, i, p] = e
+                a_m = -gamma * v_m + beta * (1.0 + noise_scale * xi[r, k, i]) * e_delayed
+                if semi_implicit:
+                    v_m = v_m + dt * a_m
+                    q_m = q_m + dt * v_m
+                else:
+                    q_m = q_m + dt * v_m
+                    v_m = v_m + dt * a_m
+                state[r, 2 + 2 * i] = q_m
+                state[r, 3 + 2 * i] = v_m
+            a_t = -gamma * v_t + alpha * esum / nc
+            if semi_implicit:
+                v_t = v_t + dt * a_t
+                q_t = q_t + dt * v_t
+            else:
+                q_t = q_t + dt * v_t
+                v_t = v_t + dt * a_t
+            p += 1
+            if p == d:
+                p = 0
+        state[r, 0] = q_t
+        state[r, 1] = v_t
+        p_out = p
+    return p_out
+
+
+@njit(cache=True, nogil=True)
+def advance_errors(
+    xi: np.ndarray,
+    y: np.ndarray,
+    hist: np.ndarray,
+    pos: int,
+    alpha: float,
+    beta: float,
+    gamma: float,
+    noise_scale: float,
+    dt: float,
+    semi_implicit: bool,
+    n0: int,
+    renorm_every: int,
+    transient_steps: int,
+    logsum: np.ndarray,
+) -> int:
+    """Advance the balancing errors (Lyapunov mode) with Benettin renormalisation.
+
+    Integrates the error coordinates only (eq. bormann04 / sss08:TMc),
+
+        e_i'' + gamma e_i' - (alpha / C) sum_j e_j + beta R_i(t) e_i(t - tau) = 0,
+
+    which removes the neutral common drift of tip and bases (DESIGN.md section 3).
+    Every ``renorm_every`` steps the whole state, (e_i, e_i') and the delay
+    history, is divided by its Euclidean norm; after ``transient_steps`` the
+    log of each norm is added to ``logsum[r]``.  The same discrete map as
+    :func:`advance_positions` applied to e = q_T - q_M (the model is linear).
+
+    y : (nb, 2C) [e_1, e_1', e_2, e_2', ...];  hist : (nb, C, d).
+    """
+    nb, n, nc = xi.shape
+    d = hist.shape[2]
+    p_out = pos
+    for r in range(nb):
+        p = pos
+        for k in range(n):
+            esum = 0.0
+            for i in range(nc):
+                esum += y[r, 2 * i]
+            for i in range(nc):
+                e = y[r, 2 * i]
+                v = y[r, 2 * i + 1]
+                e_delayed = hist[r, i, p]
+                hist[r, i, p] = e
+                a = (
+                    -gamma * v
+                    + alpha * esum / nc
+                    - beta * (1.0 + noise_scale * xi[r, k, i]) * e_delayed
+                )
+                if semi_implicit:
+                    v = v + dt * a
+                    e = e + dt * v
+                else:
+                    e = e + dt * v
+                    v = v + dt * a
+                y[r, 2 * i] = e
+                y[r, 2 * i + 1] = v
+            p += 1
+            if p == d:
+                p = 0
+            nk = n0 + k + 1
+            if nk % renorm_every == 0:
+                s = 0.0
+                for m in range(2 * nc):
+                    s += y[r, m] * y[r, m]
+                for i in range(nc):
+                    for m in range(d):
+                        s += hist[r, i, m] * hist[r, i, m]
+                norm = math.sqrt(s)
+                inv = 1.0 / norm
+                for m in range(2 * nc):
+                    y[r, m] *= inv
+                for i in range(nc):
+                    for m in range(d):
+                        hist[r, i, m] *= inv
+                if nk > transient_steps:
+                    logsum[r] += math.log(norm)
+        p_out = p
+    return p_out

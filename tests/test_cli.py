@@ -1,0 +1,67 @@
+"""The command line: JSON output, exit codes, one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from validation.cli import main
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_lyapunov_json(capsys):
+    code, out, _ = run(
+        capsys, "lyapunov", "--model", "coupled", "--beta", "23", "--nu", "0",
+        "--duration", "50", "--realizations", "2", "--json",
+    )  # fmt: skip
+    assert code == 0
+    d = json.loads(out)
+    assert d["lambda1"] < 0 and len(d["ci95"]) == 2 and d["ci95"][0] <= d["lambda1"] <= d["ci95"][1]
+
+
+def test_stability_json_and_plot(capsys, tmp_path):
+    png = tmp_path / "region.png"
+    code, out, _ = run(
+        capsys, "stability", "--model", "single", "--beta", "30", "--json", "--plot", str(png),
+        "--beta-grid", "0:60:7", "--tau-grid", "0.05:0.2:4",
+    )  # fmt: skip
+    assert code == 0
+    d = json.loads(out)
+    assert d["stable"] is True and d["abscissa"] < 0
+    assert png.stat().st_size > 1000
+
+
+def test_simulate_writes_schema(capsys, tmp_path):
+    out_file = tmp_path / "run.npz"
+    code, _, _ = run(
+        capsys, "simulate", "--model", "coupled", "--beta", "20.3", "--duration", "0.5",
+        "--realizations", "2", "--out", str(out_file),
+    )  # fmt: skip
+    assert code == 0
+    from reduced import Trajectory
+
+    tr = Trajectory.load_npz(out_file)
+    assert tr["balancing_error"].shape == (2, 500, 2)
+
+
+@pytest.mark.parametrize(
+    ("argv", "name"),
+    [
+        (["lyapunov", "--beta", "-3"], "beta"),
+        (["lyapunov", "--beta", "20", "--tau", "0.1234"], "tau"),
+        (["lyapunov", "--beta", "20", "--realizations", "0"], "realizations"),
+        (["lyapunov", "--beta", "nan"], "beta"),
+        (["lyapunov", "--beta", "20", "--dt", "-1"], "dt"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2(capsys, argv, name):
+    code, _, err = run(capsys, *argv)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and name in lines[0] and "Traceback" not in err
