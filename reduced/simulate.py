@@ -51,14 +51,13 @@ def plan_recording(
     fields: tuple[str, ...],
     dtype: np.dtype,
     max_bytes: int,
+    allowed: tuple[str, ...] = COMMON_FIELDS,
 ) -> int:
     """Check the recording request and return the number of samples."""
     decimate = check_count("decimate", decimate)
     for f in fields:
-        if f not in COMMON_FIELDS:
-            raise ParameterError(
-                f"fields: unknown field {f!r}; allowed: {', '.join(COMMON_FIELDS)}"
-            )
+        if f not in allowed:
+            raise ParameterError(f"fields: unknown field {f!r}; allowed: {', '.join(allowed)}")
     n_samples = -(-n_steps // decimate)
     need = n_samples * n_realizations * nc * len(fields) * np.dtype(dtype).itemsize
     if need > max_bytes:

@@ -13,10 +13,9 @@ from validation.cli import EXIT_OK, _dump, _model_args, _params, _run_args
 def cmd_simulate(a: argparse.Namespace) -> int:
     params = _params(a)
     if a.engine == "mujoco":
-        from cip.model import CIPParams
         from cip.simulate import simulate_full
 
-        phys = CIPParams.from_reduced(params, rod_length=a.rod_length, mass_ratio=a.mass_ratio)
+        phys = _physical(a)
         traj = simulate_full(
             a.model, params, a.duration, a.realizations, a.seed, amplitude=a.amplitude,
             physical=phys, decimate=a.decimate, threads=a.threads, progress=True,
@@ -45,7 +44,58 @@ def cmd_simulate(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _physical(a: argparse.Namespace):
+    from cip.model import CIPParams
+
+    return CIPParams.from_reduced(
+        _params(a, beta=0.0), rod_length=a.rod_length, mass_ratio=a.mass_ratio
+    )
+
+
+def cmd_linearize(a: argparse.Namespace) -> int:
+    from cip.linearize import linearize, transition_check
+
+    phys = _physical(a)
+    lin = linearize(a.model, phys)
+    out = {
+        "model": a.model,
+        "coordinates": lin.labels,
+        "A_full": lin.A_full,
+        "A_reduced": lin.A_reduced,
+        "A_difference": lin.A_diff,
+        "A_predicted_extra": lin.A_extra,
+        "B_full": lin.B_full,
+        "B_reduced": lin.B_reduced,
+        "residual_after_extra_terms": lin.residual,
+        "rod_stiffness": lin.rod_stiffness,
+        "rod_damping": lin.rod_damping,
+        "implied_reduced": phys.implied_reduced(),
+        "mjd_transitionFD_check": transition_check(a.model, phys),
+    }
+    if a.json:
+        print(_dump(out))
+        return EXIT_OK
+    np.set_printoptions(precision=6, suppress=True, linewidth=140)
+    print(f"{a.model} CIP linearised about upright; x = ({', '.join(lin.labels)}); u = F/M")
+    for key in ("A_full", "A_reduced", "A_difference", "A_predicted_extra", "B_full", "B_reduced"):
+        print(f"\n{key}:\n{np.asarray(out[key])}")
+    print(f"\nmax |A_full - A_reduced - predicted extra| = {lin.residual:.3g} 1/s^2")
+    if lin.rod_stiffness is not None:
+        print(f"rod constraint on delta: stiffness {lin.rod_stiffness:.4g} 1/s^2, "
+              f"damping {lin.rod_damping:.4g} 1/s")  # fmt: skip
+    print(f"mjd_transitionFD vs Euler map of A: {out['mjd_transitionFD_check']:.3g}")
+    print("implied reduced parameters:", phys.implied_reduced())
+    return EXIT_OK
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("linearize", help="A, B of the MuJoCo CIP beside the reduced model's")
+    _model_args(p, beta=False)
+    p.add_argument("--rod-length", type=float, default=1.0, help="rod length l (m)")
+    p.add_argument("--mass-ratio", type=float, default=1e-3, help="bob / cart mass m/M")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_linearize)
+
     p = sub.add_parser("simulate", help="time series of either engine to a .npz file")
     _model_args(p)
     _run_args(p, duration=10.0, realizations=4)

@@ -1,0 +1,196 @@
+"""Advance many realisations of the MuJoCo CIP under delayed feedback, tau at a time.
+
+The control over step n is  F_i = M * beta * R_{i,n} * e_i(n - d),  d = tau/dt,
+with the noise R_{i,n} at step n (not n - d) and e_i = L sin(theta_i), the bob's
+x minus the cart's x.  Over the next d steps it depends only on states already
+computed, so the controls of a whole chunk of d steps are known in advance:
+one ``mujoco.rollout`` call advances every realisation d steps across threads
+at the engine's own speed, and Python touches the delay buffer once per chunk
+(DESIGN.md section 4).  Chunking by d is exact: the rollout of a chunk starts
+from the last state of the previous one.
+
+MuJoCo's native actuator delay (``delay``/``nsample``) would delay ``ctrl``,
+noise included (the noise would be applied at t - tau); the chunked rollout
+keeps the noise at t and needs no callback.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from reduced.params import BalanceParams, ParameterError
+
+from .model import CIPParams, build
+
+STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
+
+
+@dataclass
+class Controller:
+    """The control law on the carts.
+
+    kind "delayed-random-gain":  F_i = M beta R_i(t) e_i(t - tau)  (paper eq. sss08:TM)
+    kind "pd":                   F_i = M (kp e_i(t - tau) + kd e_i'(t - tau))
+    (the PD-controlled CIP of the authors' earlier work, with the same delay;
+    tau may be one step for an undelayed PD).
+    """
+
+    kind: str = "delayed-random-gain"
+    kp: float = 0.0
+    kd: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("delayed-random-gain", "pd"):
+            raise ParameterError(f"controller must be delayed-random-gain or pd, got {self.kind!r}")
+
+
+class CIPRunner:
+    """State of R realisations of the single or coupled CIP and their delay buffers.
+
+    Attributes
+    ----------
+    state : (R, nstate) mjSTATE_FULLPHYSICS states (time, qpos, qvel).
+    e_hist, edot_hist : (R, d, C) balancing errors (m) and their rates (m/s)
+        at steps n - d .. n - 1, n the next step.
+    """
+
+    def __init__(
+        self,
+        model: str,
+        params: BalanceParams,
+        physical: CIPParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        controller: Controller | None = None,
+        threads: int | None = None,
+    ) -> None:
+        self.model_name = model
+        self.params = params
+        self.physical = physical
+        self.controller = controller or Controller()
+        self.nc = 1 if model == "single" else 2
+        if abs(physical.timestep - params.dt) > 1e-15:
+            raise ParameterError(
+                f"physical timestep {physical.timestep} differs from dt {params.dt}"
+            )
+        L = physical.pendulum_length
+        if not abs(amplitude) < L:
+            raise ParameterError(
+                f"amplitude must be an initial balancing error |e| < L = {L:.4g} m, "
+                f"got {amplitude!r}"
+            )
+        self.m = build(model, physical)
+        self.L = L
+        self.d = params.delay_steps
+        names = [
+            mujoco.mj_id2name(self.m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(self.m.njnt)
+        ]
+        self.nstate = mujoco.mj_stateSize(self.m, STATE_SPEC)
+        qpos0 = 1  # time comes first in mjSTATE_FULLPHYSICS
+        qvel0 = 1 + self.m.nq
+        ix = [names.index(f"x_M{i + 1}") for i in range(self.nc)]
+        it = [names.index(f"theta_{i + 1}") for i in range(self.nc)]
+        self.i_x = np.array([qpos0 + self.m.jnt_qposadr[j] for j in ix])
+        self.i_th = np.array([qpos0 + self.m.jnt_qposadr[j] for j in it])
+        self.i_vx = np.array([qvel0 + self.m.jnt_dofadr[j] for j in ix])
+        self.i_om = np.array([qvel0 + self.m.jnt_dofadr[j] for j in it])
+        self.i_u = np.array(
+            [
+                mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i + 1}")
+                for i in range(self.nc)
+            ]
+        )
+        self.threads = max(1, min(threads or os.cpu_count() or 1, n_realizations))
+        self.datas = [mujoco.MjData(self.m) for _ in range(self.threads)]
+        self.n_realizations = n_realizations
+        self.models = [self.m] * n_realizations
+        self._sens: np.ndarray | None = None
+        data = mujoco.MjData(self.m)
+        theta0 = np.arcsin(amplitude / L)
+        for j in it:
+            data.qpos[self.m.jnt_qposadr[j]] = theta0
+        mujoco.mj_forward(self.m, data)
+        s0 = np.empty(self.nstate)
+        mujoco.mj_getState(self.m, data, s0, STATE_SPEC)
+        self.state = np.tile(s0, (n_realizations, 1))
+        e0, edot0 = self.errors(self.state[:, None, :])
+        self.e_hist = np.repeat(e0, self.d, axis=1)
+        self.edot_hist = np.repeat(edot0, self.d, axis=1)
+        self.step = 0
+        self.controls = np.zeros((n_realizations, self.d, self.m.nu))
+
+    # ------------------------------------------------------------------
+    def errors(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Balancing error e = L sin(theta) (m) and its rate L cos(theta) theta' (m/s).
+
+        ``states`` (..., nstate) -> two arrays (..., C).
+        """
+        th = states[..., self.i_th]
+        return self.L * np.sin(th), self.L * np.cos(th) * states[..., self.i_om]
+
+    def advance(self, xi: np.ndarray | None) -> np.ndarray:
+        """Advance every realisation by n = xi.shape[1] <= d steps.
+
+        ``xi`` (R, n, C) are the standard-normal draws of steps step .. step+n-1
+        (ignored by the PD controller, which then needs n only: pass an
+        array of zeros).  Returns the states *after* each step, (R, n, nstate).
+        """
+        n = xi.shape[1]
+        if n > self.d:
+            raise ValueError("advance at most tau at a time")
+        p, M = self.params, self.physical.cart_mass
+        ctrl = self.controls[:, :n]
+        if self.controller.kind == "pd":
+            c = self.controller
+            u = M * (c.kp * self.e_hist[:, :n] + c.kd * self.edot_hist[:, :n])
+        else:
+            u = (M * p.beta) * (1.0 + p.noise_scale * xi) * self.e_hist[:, :n]
+        ctrl[:, :, self.i_u] = u
+        out = np.empty((self.n_realizations, n, self.nstate))
+        rollout.rollout(
+            self.models, self.datas, self.state, np.ascontiguousarray(ctrl), nstep=n,
+            skip_checks=True, state=out, sensordata=self._sensordata(n),
+        )  # fmt: skip
+        e, edot = self.errors(out)
+        # e at steps step .. step+n-1 are: current state, then out[:, :n-1]
+        e_cur, edot_cur = self.errors(self.state)
+        new_e = np.concatenate([e_cur[:, None], e[:, : n - 1]], axis=1)
+        new_edot = np.concatenate([edot_cur[:, None], edot[:, : n - 1]], axis=1)
+        self.e_hist = np.concatenate([self.e_hist[:, n:], new_e], axis=1)
+        self.edot_hist = np.concatenate([self.edot_hist[:, n:], new_edot], axis=1)
+        self.state = out[:, -1].copy()
+        self.step += n
+        return out
+
+    def _sensordata(self, n: int) -> np.ndarray:
+        if self._sens is None or self._sens.shape[1] != n:
+            self._sens = np.empty((self.n_realizations, n, self.m.nsensordata))
+        return self._sens
+
+    def warnings(self) -> int:
+        """Number of MuJoCo warnings (bad qacc, instability) raised in the worker data."""
+        return sum(int(d.warning[w].number) for d in self.datas for w in range(len(d.warning)))
+
+    def fields(self, states: np.ndarray) -> dict[str, np.ndarray]:
+        """The shared schema's fields from states (..., nstate) -> (..., C) each."""
+        th = states[..., self.i_th]
+        om = states[..., self.i_om]
+        x = states[..., self.i_x]
+        v = states[..., self.i_vx]
+        e = self.L * np.sin(th)
+        edot = self.L * np.cos(th) * om
+        return {
+            "tip_position": x + e,
+            "tip_velocity": v + edot,
+            "base_position": x,
+            "base_velocity": v,
+            "balancing_error": e,
+            "balancing_error_velocity": edot,
+            "angle": th,
+        }

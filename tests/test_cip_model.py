@@ -1,0 +1,216 @@
+"""The MuJoCo CIP: files, physics, delay, and agreement with the reduced model."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from cip.linearize import linearize, transition_check
+from cip.lyapunov import lyapunov_full
+from cip.model import MODEL_DIR, CIPParams, build, mjcf
+from cip.runner import CIPRunner
+from cip.simulate import DivergenceWarning, simulate_full
+from reduced import (
+    BalanceParams,
+    GainNoise,
+    ParameterError,
+    characteristic_roots,
+    lyapunov,
+    simulate,
+)
+
+P = BalanceParams(beta=20.306)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_model_files_equal_generator_output(model):
+    path = MODEL_DIR / f"cip_{model}.xml"
+    assert path.read_text() == mjcf(model), "regenerate with cip.model.write_models()"
+    m = mujoco.MjModel.from_xml_path(str(path))
+    nc = 1 if model == "single" else 2
+    assert m.nq == m.nv == 2 * nc
+    for i in range(1, nc + 1):
+        for obj, name in [
+            (mujoco.mjtObj.mjOBJ_JOINT, f"x_M{i}"),
+            (mujoco.mjtObj.mjOBJ_JOINT, f"theta_{i}"),
+            (mujoco.mjtObj.mjOBJ_SITE, f"tip_{i}"),
+            (mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i}"),
+            (mujoco.mjtObj.mjOBJ_SENSOR, f"angle_{i}"),
+        ]:
+            assert mujoco.mj_name2id(m, obj, name) >= 0, name
+    if nc == 2:
+        assert m.neq == 1 and m.ntendon == 1
+
+
+def test_masses_and_lengths_as_specified():
+    p = CIPParams(bob_mass=2e-3, cart_mass=3.0, pendulum_length=0.5)
+    m = build("single", p)
+    cart = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "cart_1")
+    pend = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "pendulum_1")
+    assert m.body_mass[cart] == 3.0 and m.body_mass[pend] == 2e-3
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    np.testing.assert_allclose(d.site("tip_1").xpos, [0, 0, 0.5], atol=1e-15)
+
+
+def test_gravity_sign_and_fall_direction():
+    """Uncontrolled, undamped: a pendulum tilted to +x falls to +x, the free cart recoils to -x."""
+    m = build("single", CIPParams(tip_damping=0.0, cart_damping=0.0))
+    d = mujoco.MjData(m)
+    d.qpos[1] = 0.05
+    for _ in range(300):
+        mujoco.mj_step(m, d)
+    assert d.qpos[1] > 0.1 and d.site("tip_1").xpos[0] > 0.04 and d.qpos[0] < 0
+    assert m.opt.gravity[2] == -9.81
+
+
+def test_energy_conserved_without_control_and_damping():
+    p = CIPParams(tip_damping=0.0, cart_damping=0.0, bob_mass=0.3, integrator="RK4", timestep=1e-4)
+    m = build("coupled", p)
+    m.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
+    d = mujoco.MjData(m)
+    d.qpos[:] = [0.0, 0.2, 0.0, 0.2]
+    d.qvel[:] = [0.1, 0.0, 0.1, 0.0]
+    mujoco.mj_forward(m, d)
+    e0 = d.energy.sum()
+    for _ in range(3000):
+        mujoco.mj_step(m, d)
+    assert abs(d.energy.sum() - e0) < 1e-4 * abs(d.energy[1] + 1e-3)
+    assert abs(d.qpos[1]) > 0.3  # it really moved
+
+
+def _tip_velocity_mismatch(amplitude: float) -> tuple[float, object]:
+    tr = simulate_full("coupled", BalanceParams(beta=20.306), 5.0, 3, seed=2, amplitude=amplitude)
+    vt = tr["tip_velocity"]
+    diff = vt[..., 0] - vt[..., 1]
+    return float(np.sqrt((diff**2).mean() / (vt**2).mean())), tr
+
+
+def test_rod_holds_its_length():
+    """Random forcing of the carts: the rod length stays l to the constraint's accuracy."""
+    _, tr = _tip_velocity_mismatch(0.05)
+    assert np.max(tr.attrs["max_abs_angle"]) > 0.05  # the test exercised real motion
+    m = build("coupled")
+    d = mujoco.MjData(m)
+    lengths = []
+    for k in range(0, tr.time.size, 50):
+        d.qpos[:] = [tr["base_position"][0, k, 0], tr["angle"][0, k, 0],
+                     tr["base_position"][0, k, 1], tr["angle"][0, k, 1]]  # fmt: skip
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_tendon(m, d)
+        lengths.append(d.ten_length[0])
+    assert np.max(np.abs(np.array(lengths) - 1.0)) < 1e-6
+
+
+def test_tip_velocities_equal_in_the_small_angle_regime():
+    """Paper eq. (dqT): q_T1' = q_T2'.  In the rigid body it holds to second order in
+    the angles (tips at unequal heights tilt the rod) plus the soft constraint's lag, a
+    linear, amplitude-independent floor (measured 1.2e-5 relative RMS)."""
+    tiny, _ = _tip_velocity_mismatch(1e-4)
+    small, _ = _tip_velocity_mismatch(1e-3)
+    large, _ = _tip_velocity_mismatch(3e-2)
+    assert small < 3e-5
+    assert small == pytest.approx(tiny, rel=0.1)  # linear regime: a floor, not geometry
+    assert large > 30 * small  # second order in the angles
+
+
+def test_delay_is_exactly_tau_and_noise_at_time_t():
+    """The force applied over step n is M beta R_n e(n - d), R_n the noise *of step n*."""
+    p = BalanceParams(beta=20.306, tau=0.02)
+    runner = CIPRunner("single", p, CIPParams.from_reduced(p), 2, 0.01)
+    noise = GainNoise(5, 2, 1)
+    e_all = [runner.errors(runner.state)[0]]
+    forces = []
+    xis = []
+    for _ in range(5):
+        xi = noise.next_chunk(runner.d)
+        out = runner.advance(xi)
+        forces.append(runner.controls[:, : runner.d, runner.i_u[0]].copy())
+        xis.append(xi[..., 0])
+        e_all.append(runner.errors(out)[0][..., 0].T)
+    e = np.concatenate([np.atleast_2d(e_all[0].T)] + [x for x in e_all[1:]], axis=0).T
+    f = np.concatenate(forces, axis=1)
+    xi = np.concatenate(xis, axis=1)
+    d = runner.d
+    n = np.arange(d, 5 * d)
+    expected = 1.0 * 20.306 * (1 + p.noise_scale * xi[:, n]) * e[:, n - d]
+    np.testing.assert_allclose(f[:, n], expected, rtol=1e-12)
+    wrong = 1.0 * 20.306 * (1 + p.noise_scale * xi[:, n]) * e[:, n - d + 1]
+    assert not np.allclose(f[:, n], wrong, rtol=1e-6)
+
+
+def _rel_l2(model, amplitude, mass_ratio, duration=10.0):
+    phys = CIPParams.from_reduced(P, mass_ratio=mass_ratio)
+    full = simulate_full(model, P, duration, 2, seed=1, amplitude=amplitude, physical=phys,
+                         fields=("balancing_error",))  # fmt: skip
+    red = simulate(model, P, duration, 2, seed=1, amplitude=amplitude, fields=("balancing_error",))
+    ef, er = full["balancing_error"], red["balancing_error"]
+    return np.linalg.norm(ef - er) / np.linalg.norm(er)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_same_noise_same_trajectory_as_reduced_model(model):
+    """Issue 3: amplitude 1e-6, paper parameters, 10 s: < 1 % relative L2, and the
+    difference shrinks with m/M (the cart reaction) and, at large amplitude, grows."""
+    base = _rel_l2(model, 1e-6, 1e-3)
+    assert base < 0.01
+    assert _rel_l2(model, 1e-6, 1e-4) < 0.2 * base
+    assert _rel_l2(model, 3e-2, 1e-4) > 3 * _rel_l2(model, 1e-6, 1e-4)
+
+
+def test_same_seed_same_numbers_whatever_threads():
+    a = simulate_full("coupled", P, 1.05, 3, seed=9, threads=1)
+    b = simulate_full("coupled", P, 1.05, 3, seed=9, threads=2)
+    for f in a.data:
+        np.testing.assert_array_equal(a[f], b[f])
+    assert a.time.size == 1050  # the last, partial chunk of tau is included
+
+
+def test_linearisation_matches_reduced_up_to_documented_terms():
+    for model in ("single", "coupled"):
+        lin = linearize(model)
+        assert np.abs(lin.A_diff).max() > 0.02  # the extra terms are really there (m/M alpha)
+        assert lin.residual < 1e-4
+        small = linearize(model, CIPParams(bob_mass=1e-5, bob_radius=0.002))
+        assert small.residual < 1e-6
+        assert transition_check(model) < 1e-9
+    k = linearize("coupled").rod_stiffness
+    assert k == pytest.approx(CIPParams().implied_reduced()["rod_stiffness"], rel=0.02)
+
+
+def test_noise_free_full_exponent_is_root_with_cart_reaction():
+    p = BalanceParams(beta=23.0, nu=0.0)
+    lam = lyapunov_full("single", p, 100.0, 1).lambda1
+    eff = characteristic_roots("single", p.with_(alpha=22.0 * 1.001)).abscissa
+    assert lam == pytest.approx(eff, abs=2e-4)
+
+
+@pytest.mark.parametrize("beta", [19.5, 20.3, 23.0])
+def test_full_lyapunov_agrees_with_reduced_within_ci(beta):
+    p = BalanceParams(beta=beta)
+    kw = {"duration": 100.0, "n_realizations": 6, "seed": 3}
+    full = lyapunov_full("single", p, **kw)
+    red = lyapunov("single", p, **kw)
+    assert full.ci95[0] <= red.lambda1 <= full.ci95[1]
+    assert red.ci95[0] <= full.lambda1 <= red.ci95[1]
+
+
+def test_divergence_stops_and_keeps_what_was_computed():
+    p = BalanceParams(beta=1e9, nu=0.0)
+    with pytest.warns(DivergenceWarning, match="realisation"):
+        tr = simulate_full("single", p, 5.0, 2, amplitude=0.01)
+    assert tr.attrs["diverged"] is not None
+    assert 0 < tr.time.size < 5000
+    assert np.isfinite(tr["balancing_error"][:, :10]).all()
+
+
+def test_bad_input():
+    with pytest.raises(ParameterError, match="amplitude"):
+        simulate_full("single", P, 1.0, amplitude=0.5)
+    with pytest.raises(ParameterError, match="bob_mass"):
+        CIPParams(bob_mass=-1.0)
+    with pytest.raises(ParameterError, match="integrator"):
+        CIPParams(integrator="Verlet")
+    with pytest.raises(ParameterError, match="fields"):
+        simulate_full("single", P, 1.0, fields=("torque",))
