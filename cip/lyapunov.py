@@ -17,8 +17,8 @@ v_Mi^2 + (L theta_i')^2 + sum over the buffer of e^2 + e'^2).
 from __future__ import annotations
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from reduced._driver import run_blocks
 from reduced.lyapunov import LyapunovResult, mean_ci95
 from reduced.noise import GainNoise
 from reduced.params import BalanceParams, ParameterError, check_count, whole_steps
@@ -81,41 +81,51 @@ def lyapunov_full(
     n_realizations = check_count("realizations", n_realizations)
     physical = physical or CIPParams.from_reduced(params)
     noise = GainNoise(seed, n_realizations, nc)
-    r = CIPRunner(model, params, physical, n_realizations, 0.0, threads=threads)
-    # random initial deviation: angles and history from an independent stream
-    for k in range(n_realizations):
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k, 1)))
-        r.state[k, r.i_th] = rng.standard_normal(nc) / physical.pendulum_length
-        r.e_hist[k] = rng.standard_normal((r.d, nc))
-    if nc == 2:
-        # start on the constraint: equal tilts keep the rod length to first order
-        r.state[:, r.i_th] = r.state[:, r.i_th].mean(axis=1, keepdims=True)
-    _rescale(r, epsilon / _deviation_norm(r, r.state))
     transient_steps = round(transient / params.dt)
     logsum = np.zeros(n_realizations)
-    start = None
-    bar = tqdm(total=n_steps * n_realizations, unit="step", unit_scale=True,
-               disable=not progress, desc="mujoco lyapunov", leave=False)  # fmt: skip
-    step = 0
-    try:
-        while step < n_steps:
-            n = min(r.d, n_steps - step)
-            r.advance(noise.next_chunk(n))
-            step += n
-            norm = _deviation_norm(r, r.state)
-            if not np.all(np.isfinite(norm)):
-                raise FloatingPointError(f"non-finite state at t = {step * params.dt:.4g} s")
-            if step > transient_steps:
-                if start is None:
-                    start = step - n
-                logsum += np.log(norm / epsilon)
-            _rescale(r, epsilon / norm)
-            bar.update(n * n_realizations)
-    finally:
-        bar.close()
+    runners: dict[int, CIPRunner] = {}
+    d = params.delay_steps
+    # accumulation starts with the first chunk that ends after the transient
+    start = (transient_steps // d) * d
+
+    def work(block: slice, xi: np.ndarray, step: int) -> None:
+        r = runners.get(block.start)
+        if r is None:
+            r = runners[block.start] = _start(model, params, physical, block, seed, epsilon)
+        n = xi.shape[1]
+        r.advance(xi)
+        norm = _deviation_norm(r, r.state)
+        if not np.all(np.isfinite(norm)):
+            raise FloatingPointError(f"non-finite state at t = {(step + n) * params.dt:.4g} s")
+        if step + n > transient_steps:
+            logsum[block] += np.log(norm / epsilon)
+        _rescale(r, epsilon / norm)
+
+    run_blocks(noise, n_steps, work, threads=threads, chunk_steps=d,
+               progress=progress and "mujoco lyapunov")  # fmt: skip
     per = logsum / ((n_steps - start) * params.dt)
     mean, ci = mean_ci95(per)
     return LyapunovResult(
         lambda1=mean, ci95=ci, per_realization=per, duration=duration, transient=transient,
         model=model, params={**params.as_dict(), "physical": physical.as_dict()}, seed=seed,
     )  # fmt: skip
+
+
+def _start(
+    model: str, params: BalanceParams, physical: CIPParams, block: slice, seed: int, epsilon: float
+) -> CIPRunner:
+    """A runner for realisations ``block`` at a random deviation of norm epsilon.
+
+    Angles and delay history of realisation k come from the independent stream
+    ``SeedSequence(seed, spawn_key=(k, 1))``; in the coupled model both angles
+    start equal (on the rod constraint to first order).
+    """
+    r = CIPRunner(model, params, physical, block.stop - block.start, 0.0, threads=1)
+    for j, k in enumerate(range(block.start, block.stop)):
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k, 1)))
+        r.state[j, r.i_th] = rng.standard_normal(r.nc) / physical.pendulum_length
+        r.e_hist[j] = rng.standard_normal((r.d, r.nc))
+    if r.nc == 2:
+        r.state[:, r.i_th] = r.state[:, r.i_th].mean(axis=1, keepdims=True)
+    _rescale(r, epsilon / _deviation_norm(r, r.state))
+    return r

@@ -19,8 +19,8 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from tqdm.auto import tqdm
 
+from reduced._driver import run_blocks
 from reduced.noise import ArrayNoise, GainNoise
 from reduced.params import BalanceParams, check_choice, whole_steps
 from reduced.schema import UNITS, Trajectory
@@ -76,56 +76,59 @@ def simulate_full(
     n_samples = plan_recording(
         n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes, allowed=FULL_FIELDS
     )
-    runner = CIPRunner(
-        model, params, physical, nreal, amplitude, controller=controller, threads=threads
-    )
     out = {f: np.empty((nreal, n_samples, nc), dtype=dtype) for f in fields}
-    max_angle = np.abs(runner.fields(runner.state)["angle"]).max(axis=1)
-    diverged = None
-    bar = tqdm(total=n_steps * nreal, unit="step", unit_scale=True, disable=not progress,
-               desc="mujoco", leave=False)  # fmt: skip
-    step = 0
-    recorded = 0
-    try:
-        while step < n_steps:
-            n = min(runner.d, n_steps - step)
-            xi = noise.next_chunk(n)
-            before = runner.state
-            states = runner.advance(xi)
-            # samples at global steps step .. step+n-1 whose index is a multiple of decimate
-            idx = np.arange(step, step + n)
-            take = idx[idx % decimate == 0]
-            if take.size:
-                sel = np.concatenate([before[:, None], states[:, :-1]], axis=1)[:, take - step]
-                vals = runner.fields(sel)
-                j0 = take[0] // decimate
-                for f in fields:
-                    out[f][:, j0 : j0 + take.size] = vals[f]
-                recorded = j0 + take.size
-            ang = np.abs(states[..., runner.i_th])
-            finite = np.isfinite(states).all(axis=(1, 2))
-            max_angle = np.maximum(
-                max_angle, np.where(np.isfinite(ang), ang, np.inf).max(axis=(1, 2))
-            )
-            step += n
-            bar.update(n * nreal)
-            nwarn = runner.warnings()
-            if not finite.all() or nwarn:
-                r = int(np.argmin(finite)) if not finite.all() else None
-                diverged = {
-                    "realization": None if r is None else r + noise.first_realization,
-                    "time_window": [(step - n) * params.dt, step * params.dt],
-                    "reason": "non-finite state" if r is not None else f"{nwarn} MuJoCo warning(s)",
-                }
-                break
-    finally:
-        bar.close()
-    if diverged is not None:
-        out = {f: a[:, :recorded] for f, a in out.items()}
+    max_angle = np.zeros(nreal)
+    recorded = np.zeros(nreal, dtype=int)
+    runners: dict[int, CIPRunner] = {}
+    diverged: list[dict] = []
+
+    def work(block: slice, xi: np.ndarray, step: int) -> bool:
+        if diverged:
+            return False  # another block diverged: stop everywhere
+        runner = runners.get(block.start)
+        if runner is None:
+            runner = runners[block.start] = CIPRunner(
+                model, params, physical, block.stop - block.start, amplitude,
+                controller=controller, threads=1,
+            )  # fmt: skip
+        n = xi.shape[1]
+        before = runner.state
+        states = runner.advance(xi)
+        # samples at global steps step .. step+n-1 whose index is a multiple of decimate
+        idx = np.arange(step, step + n)
+        take = idx[idx % decimate == 0]
+        if take.size:
+            sel = np.concatenate([before[:, None], states[:, :-1]], axis=1)[:, take - step]
+            vals = runner.fields(sel)
+            j0 = take[0] // decimate
+            for f in fields:
+                out[f][block, j0 : j0 + take.size] = vals[f]
+            recorded[block] = j0 + take.size
+        ang = np.abs(states[..., runner.i_th])
+        ang = np.where(np.isfinite(ang), ang, np.inf).max(axis=(1, 2))
+        max_angle[block] = np.maximum(max_angle[block], ang)
+        finite = np.isfinite(states).all(axis=(1, 2))
+        nwarn = runner.warnings()
+        if finite.all() and not nwarn:
+            return True
+        r = int(np.argmin(finite)) if not finite.all() else 0
+        diverged.append({
+            "realization": block.start + r + noise.first_realization,
+            "time_window": [step * params.dt, (step + n) * params.dt],
+            "reason": "non-finite state" if not finite.all() else f"{nwarn} MuJoCo warning(s)",
+        })  # fmt: skip
+        return False
+
+    run_blocks(noise, n_steps, work, threads=threads, chunk_steps=params.delay_steps,
+               progress=progress and "mujoco")  # fmt: skip
+    first = min(diverged, key=lambda d: d["time_window"][0]) if diverged else None
+    n_rec = int(recorded.min()) if first else n_samples
+    if first:
+        out = {f: a[:, :n_rec] for f, a in out.items()}
         warnings.warn(
-            f"MuJoCo run stopped: {diverged['reason']} in realisation {diverged['realization']} "
-            f"between t = {diverged['time_window'][0]:.4g} and {diverged['time_window'][1]:.4g} s; "
-            f"returning the {recorded} samples computed",
+            f"MuJoCo run stopped: {first['reason']} in realisation {first['realization']} "
+            f"between t = {first['time_window'][0]:.4g} and {first['time_window'][1]:.4g} s; "
+            f"returning the {n_rec} samples computed before it",
             DivergenceWarning,
             stacklevel=2,
         )
@@ -141,11 +144,11 @@ def simulate_full(
         "decimate": int(decimate),
         **params.as_dict(),
         "physical": physical.as_dict(),
-        "controller": runner.controller.kind,
+        "controller": (controller or Controller()).kind,
         "max_abs_angle": max_angle.tolist(),
         "small_angle_limit": limit,
         "left_small_angle": (max_angle > limit).tolist(),
-        "diverged": diverged,
+        "diverged": first,
     }
-    time = np.arange(recorded if diverged else n_samples) * (params.dt * decimate)
+    time = np.arange(n_rec) * (params.dt * decimate)
     return Trajectory(time=time, data=out, attrs=attrs)

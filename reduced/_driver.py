@@ -23,7 +23,7 @@ from .noise import GainNoise
 #: pieces, large enough for the Python call overhead to vanish.
 CHUNK_STEPS = 8192
 
-BlockFn = Callable[[slice, np.ndarray, int], None]
+BlockFn = Callable[[slice, np.ndarray, int], "bool | None"]
 
 
 def default_threads() -> int:
@@ -44,6 +44,7 @@ def run_blocks(
     ``block`` is a slice of realisation indices, ``xi`` the draws
     (len(block), n, C) for global steps ``n0 .. n0 + n - 1``.  Chunks of one
     block are called in order; blocks run concurrently on ``threads`` threads.
+    A block stops early when ``work`` returns False.
     """
     chunk_steps = chunk_steps or CHUNK_STEPS
     nreal = noise.n_realizations
@@ -67,7 +68,8 @@ def run_blocks(
             xi = buf[:, :n]
             for j in range(nb):
                 noise.fill(block.start + j, xi[j])
-            work(block, xi, n0)
+            if work(block, xi, n0) is False:
+                break
             bar.update(n * nb)
 
     try:

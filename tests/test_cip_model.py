@@ -214,3 +214,10 @@ def test_bad_input():
         CIPParams(integrator="Verlet")
     with pytest.raises(ParameterError, match="fields"):
         simulate_full("single", P, 1.0, fields=("torque",))
+
+
+def test_full_lyapunov_same_seed_same_numbers_whatever_threads():
+    p = BalanceParams(beta=21.0)
+    a = lyapunov_full("coupled", p, 5.0, 3, seed=4, threads=1)
+    b = lyapunov_full("coupled", p, 5.0, 3, seed=4, threads=2)
+    np.testing.assert_array_equal(a.per_realization, b.per_realization)
