@@ -1,0 +1,117 @@
+"""Metrics against signals whose answers are known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from validation.metrics import (
+    first_dominant_peak,
+    fit_two_power_laws,
+    laminar_phases,
+    power_law_exponent,
+    power_spectrum,
+    rms,
+    stcc,
+    stcc_significance,
+    velocity_density_ratio,
+)
+
+RNG = np.random.default_rng(12345)
+
+
+def test_stcc_equals_the_definition_by_brute_force():
+    dt, n = 0.01, 900
+    x = RNG.standard_normal((2, n)).cumsum(axis=-1)
+    y = np.roll(x, 3, axis=-1) + RNG.standard_normal((2, n))
+    t, lags, r = stcc(x, y, dt, window=2.0, max_lag=0.1, stride=0.5)
+    w = 200
+    for k, t0 in enumerate(t):
+        i = int(round(t0 / dt))
+        for j in range(len(lags)):
+            xs, ys_ = x[1, i : i + w], y[1, i + j : i + j + w]
+            yw = y[1, i : i + w]
+            c = np.mean((xs - xs.mean()) * (ys_ - yw.mean()))
+            expect = c / (xs.std() * yw.std())
+            assert r[1, k, j] == pytest.approx(expect, rel=1e-9, abs=1e-12)
+
+
+def test_stcc_of_delayed_copy_peaks_at_the_delay():
+    dt, delay = 0.005, 0.035
+    n = 40_000
+    x = RNG.standard_normal((3, n))
+    y = np.roll(x, int(round(delay / dt)), axis=-1) + 0.5 * RNG.standard_normal((3, n))
+    _, lags, r = stcc(x, y, dt, window=5.0, max_lag=0.2, stride=1.0)
+    tau_hat = first_dominant_peak(r, lags, significance=stcc_significance(1000))
+    assert np.all(tau_hat == pytest.approx(delay))
+
+
+def test_white_noise_has_no_dominant_peak():
+    dt = 0.005
+    x = RNG.standard_normal((3, 40_000))
+    y = RNG.standard_normal((3, 40_000))
+    _, lags, r = stcc(x, y, dt, window=5.0, max_lag=0.2, stride=1.0)
+    tau_hat = first_dominant_peak(r, lags, significance=stcc_significance(1000))
+    # max over 41 lags of |R| exceeds 3 sigma in a few windows by chance
+    assert np.mean(np.isnan(tau_hat)) > 0.9
+    # without a significance level nearly every window would report a spurious peak
+    assert np.mean(np.isnan(first_dominant_peak(r, lags))) < 0.1
+
+
+def test_first_dominant_peak_rule():
+    lags = np.arange(6) * 0.01
+    assert first_dominant_peak(np.array([0.1, 0.5, 0.2, 0.55, 0.3, 0.2]), lags) == 0.01
+    assert first_dominant_peak(np.array([0.1, 0.2, 0.1, 0.9, 0.3, 0.2]), lags) == 0.03
+    assert np.isnan(first_dominant_peak(np.array([0.9, 0.5, 0.4, 0.3, 0.2, 0.1]), lags))
+    assert first_dominant_peak(np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6]), lags) == 0.05
+
+
+def _process_with_spectrum(slopes, fc, n, dt, reals):
+    """Gaussian noise whose PSD is f^s1 below fc and f^s2 above (continuous)."""
+    f = np.fft.rfftfreq(n, dt)
+    f = np.maximum(f, f[1])
+    amp = np.where(f < fc, (f / fc) ** (slopes[0] / 2), (f / fc) ** (slopes[1] / 2))
+    amp[0] = 0
+    z = RNG.standard_normal((reals, f.size)) + 1j * RNG.standard_normal((reals, f.size))
+    return np.fft.irfft(z * amp, n=n, axis=-1)
+
+
+@pytest.mark.parametrize(("slopes", "fc"), [((-0.5, -2.0), 1.0), ((0.0, -3.0), 2.0)])
+def test_power_law_fit_recovers_known_slopes(slopes, fc):
+    dt = 0.01
+    x = _process_with_spectrum(slopes, fc, 2**17, dt, reals=8)
+    f, s = power_spectrum(x, dt, segment=100.0)
+    fit = fit_two_power_laws(f, s, fmin=0.05, fmax=20.0, n_bootstrap=50)
+    assert fit.slope_low == pytest.approx(slopes[0], abs=0.08)
+    assert fit.slope_high == pytest.approx(slopes[1], abs=0.1)
+    assert fit.crossover == pytest.approx(fc, rel=0.3)
+    assert 0 < fit.slope_low_se < 0.1
+
+
+def test_welch_spectrum_of_white_noise_is_flat_at_2_sigma2_dt():
+    dt = 0.001
+    x = RNG.normal(0, 2.0, (4, 200_000))
+    f, s = power_spectrum(x, dt, segment=2.0)
+    assert np.mean(s) == pytest.approx(2 * 4.0 * dt, rel=0.02)  # one-sided PSD
+
+
+def test_rms_and_velocity_density_ratio():
+    assert rms(np.array([[3.0, -3.0, 3.0, -3.0]]))[0] == 3.0
+    edges = np.linspace(-3, 3, 61)
+    narrow = RNG.normal(0, 0.5, 200_000)
+    wide = RNG.normal(0, 1.0, 200_000)
+    centres, ratio = velocity_density_ratio(narrow, wide, edges)
+    mid = np.argmin(np.abs(centres))
+    assert ratio[mid] == pytest.approx(2.0, rel=0.1)  # Gaussian densities at 0: 1/0.5 vs 1/1
+
+
+def test_laminar_phase_durations_and_exponent():
+    e = np.array([5, 0, 0, 0, 5, 0, 5, 5, 0, 0, 5], dtype=float)
+    np.testing.assert_allclose(laminar_phases(e, 0.1, 1.0), [0.3, 0.1, 0.2])
+    # runs touching the ends are dropped
+    np.testing.assert_allclose(laminar_phases(np.array([0, 0, 5, 0, 5, 0.0]), 1.0, 1.0), [1.0])
+    # durations drawn from a density ~ T^-3/2 on [1, 1000]
+    u = RNG.random(200_000)
+    t = (1 - u * (1 - 1000**-0.5)) ** -2.0
+    slope, se = power_law_exponent(t, 1.0, 1000.0)
+    assert slope == pytest.approx(-1.5, abs=max(3 * se, 0.05))
