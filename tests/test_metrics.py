@@ -27,7 +27,7 @@ def test_stcc_equals_the_definition_by_brute_force():
     t, lags, r = stcc(x, y, dt, window=2.0, max_lag=0.1, stride=0.5)
     w = 200
     for k, t0 in enumerate(t):
-        i = int(round(t0 / dt))
+        i = round(t0 / dt)
         for j in range(len(lags)):
             xs, ys_ = x[1, i : i + w], y[1, i + j : i + j + w]
             yw = y[1, i : i + w]
@@ -40,7 +40,7 @@ def test_stcc_of_delayed_copy_peaks_at_the_delay():
     dt, delay = 0.005, 0.035
     n = 40_000
     x = RNG.standard_normal((3, n))
-    y = np.roll(x, int(round(delay / dt)), axis=-1) + 0.5 * RNG.standard_normal((3, n))
+    y = np.roll(x, round(delay / dt), axis=-1) + 0.5 * RNG.standard_normal((3, n))
     _, lags, r = stcc(x, y, dt, window=5.0, max_lag=0.2, stride=1.0)
     tau_hat = first_dominant_peak(r, lags, significance=stcc_significance(1000))
     assert np.all(tau_hat == pytest.approx(delay))
@@ -91,7 +91,7 @@ def test_power_law_fit_recovers_known_slopes(slopes, fc):
 def test_welch_spectrum_of_white_noise_is_flat_at_2_sigma2_dt():
     dt = 0.001
     x = RNG.normal(0, 2.0, (4, 200_000))
-    f, s = power_spectrum(x, dt, segment=2.0)
+    _f, s = power_spectrum(x, dt, segment=2.0)
     assert np.mean(s) == pytest.approx(2 * 4.0 * dt, rel=0.02)  # one-sided PSD
 
 

@@ -95,6 +95,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mass-ratio", type=float, default=1e-3, help="bob / cart mass m/M")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_linearize)
+    add_run_commands(sub)
 
     p = sub.add_parser("simulate", help="time series of either engine to a .npz file")
     _model_args(p)
@@ -109,3 +110,98 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="FILE.npz")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_simulate)
+
+
+# ------------------------------------------------------------------ run
+def _profile(name: str):
+    from validation.profiles import PROFILES
+
+    return PROFILES[name]
+
+
+def cmd_run(a: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from validation.harness import run_validation
+    from validation.report import compare_with_baseline, summary_table, write_reports
+
+    baseline = None
+    if a.baseline:
+        path = Path(a.baseline)
+        if not path.is_file():
+            raise ParameterError(f"--baseline: no such file {a.baseline!r}")
+        try:
+            baseline = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ParameterError(f"--baseline: {a.baseline!r} is not JSON ({exc.msg})") from None
+        if baseline.get("cipval_results") != 1:
+            raise ParameterError(f"--baseline: {a.baseline!r} is not a cip-validate results file")
+        if baseline.get("profile") != a.profile:
+            raise ParameterError(
+                f"--baseline: {a.baseline!r} was made with profile {baseline.get('profile')!r}, "
+                f"this run uses {a.profile!r}"
+            )
+    if a.workers is not None and a.workers < 1:
+        raise ParameterError(f"--workers must be an integer >= 1, got {a.workers}")
+    out = Path(a.out)
+    results = run_validation(_profile(a.profile), out, workers=a.workers, progress=True,
+                             figures=not a.no_figures)  # fmt: skip
+    regression = compare_with_baseline(results, baseline) if baseline else None
+    if regression:
+        failed = [c for c in regression if c.status == "fail"]
+        results["regression"] = {"baseline": str(a.baseline), "checked": len(regression),
+                                 "failed": [c.as_dict() for c in failed]}  # fmt: skip
+        if failed:
+            results["status"] = "fail"
+    write_reports(results, out, regression)
+    print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
+    if regression is not None:
+        nfail = sum(c.status == "fail" for c in regression)
+        print(f"regression vs {a.baseline}: {len(regression) - nfail} of {len(regression)} "
+              "numbers unchanged within 4 combined standard errors")  # fmt: skip
+    print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'results.json'}")
+    return 1 if results["status"] == "fail" else 0
+
+
+def cmd_baseline(a: argparse.Namespace) -> int:
+    import json
+    import shutil
+    from pathlib import Path
+
+    out = Path(a.out)
+    if a.from_results:
+        src = Path(a.from_results)
+        if not src.is_file():
+            raise ParameterError(f"--from: no such file {a.from_results!r}")
+        if json.loads(src.read_text()).get("cipval_results") != 1:
+            raise ParameterError(f"--from: {a.from_results!r} is not a cip-validate results file")
+        shutil.copyfile(src, out)
+    else:
+        from validation.harness import run_validation
+        from validation.report import write_json
+
+        tmp = out.parent / (out.stem + "_run")
+        results = run_validation(_profile(a.profile), tmp, workers=a.workers, progress=True,
+                                 figures=False)  # fmt: skip
+        write_json(results, out)
+    print(f"baseline written: {out}")
+    return 0
+
+
+def add_run_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="the validation suite: checks, paper table, figures, report")
+    p.add_argument("--profile", choices=("quick", "paper", "smoke"), default="quick")
+    p.add_argument("--out", default="cip-validate-out", metavar="DIR")
+    p.add_argument("--baseline", metavar="FILE", help="results.json to compare with")
+    p.add_argument("--workers", type=int, default=None, help="threads (default: all cores)")
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("baseline", help="write a baseline results file for --baseline")
+    p.add_argument("--profile", choices=("quick", "paper", "smoke"), default="quick")
+    p.add_argument("--out", default="baseline.json", metavar="FILE")
+    p.add_argument("--from", dest="from_results", metavar="RESULTS.json",
+                   help="use an existing results.json instead of running")  # fmt: skip
+    p.add_argument("--workers", type=int, default=None)
+    p.set_defaults(func=cmd_baseline)

@@ -28,7 +28,7 @@ def power_spectrum(
     (..., len(f)) in units of x^2 / Hz.
     """
     x = np.asarray(x, dtype=float)
-    nperseg = min(x.shape[-1], max(16, int(round(segment / dt))))
+    nperseg = min(x.shape[-1], max(16, round(segment / dt)))
     f, s = scipy.signal.welch(x, fs=1.0 / dt, window="hann", nperseg=nperseg, detrend="linear")
     return f[1:], s[..., 1:]
 
@@ -179,28 +179,30 @@ def stcc(
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     n = x.shape[-1]
-    w = int(round(window / dt))
-    lmax = int(round(max_lag / dt))
-    step = max(1, int(round(stride / dt)))
+    w = round(window / dt)
+    lmax = round(max_lag / dt)
+    step = max(1, round(stride / dt))
     if w < 2 or w + lmax > n:
-        raise ValueError(f"window + max_lag = {(w + lmax) * dt:g} s exceeds the series ({n * dt:g} s)")
+        raise ValueError(
+            f"window + max_lag = {(w + lmax) * dt:g} s exceeds the series ({n * dt:g} s)"
+        )
     starts = np.arange(0, n - w - lmax + 1, step)
 
     def wsum(z: np.ndarray) -> np.ndarray:
-        c = np.concatenate([np.zeros(z.shape[:-1] + (1,)), np.cumsum(z, axis=-1)], axis=-1)
+        c = np.concatenate([np.zeros((*z.shape[:-1], 1)), np.cumsum(z, axis=-1)], axis=-1)
         return c[..., starts + w] - c[..., starts]
 
     mx = wsum(x) / w
     my = wsum(y) / w
     sx = np.sqrt(np.maximum(wsum(x * x) / w - mx * mx, 0.0))
     sy = np.sqrt(np.maximum(wsum(y * y) / w - my * my, 0.0))
-    out = np.empty(x.shape[:-1] + (starts.size, lmax + 1))
+    out = np.empty((*x.shape[:-1], starts.size, lmax + 1))
     for lag in range(lmax + 1):
         ys = y[..., lag:]
         xs = x[..., : n - lag]
         # windows of x(s) y(s + lag) and of y(s + lag) for s in [t, t + Dt)
-        c = np.concatenate([np.zeros(x.shape[:-1] + (1,)), np.cumsum(xs * ys, axis=-1)], axis=-1)
-        cy = np.concatenate([np.zeros(x.shape[:-1] + (1,)), np.cumsum(ys, axis=-1)], axis=-1)
+        c = np.concatenate([np.zeros((*x.shape[:-1], 1)), np.cumsum(xs * ys, axis=-1)], axis=-1)
+        cy = np.concatenate([np.zeros((*x.shape[:-1], 1)), np.cumsum(ys, axis=-1)], axis=-1)
         sxy = (c[..., starts + w] - c[..., starts]) / w
         sy_l = (cy[..., starts + w] - cy[..., starts]) / w
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -1,0 +1,358 @@
+"""Full (MuJoCo) vs reduced model under the same noise draws: metrics and verdicts.
+
+Each function runs both engines with one seed, computes a metric per
+realisation and returns :class:`validation.stats.Check` objects whose
+tolerances follow the rules in :mod:`validation.stats`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cip.lyapunov import lyapunov_full
+from cip.model import small_angle_limit
+from cip.simulate import simulate_full
+from reduced import BalanceParams, lyapunov, simulate
+from reduced.schema import Trajectory
+
+from . import metrics
+from .profiles import PAPER_BETA, Profile
+from .stats import FAIL, PASS, Check, ci_overlap, paired_equivalence, se_agreement, worst
+
+#: Window (s) of the trajectory comparison, issue 3's acceptance: < 1 % over 10 s.
+TRAJECTORY_WINDOW = 10.0
+
+SERIES_FIELDS = ("balancing_error", "balancing_error_velocity", "tip_velocity", "base_velocity")
+
+
+def lyapunov_checks(profile: Profile, threads: int | None) -> tuple[list[Check], dict]:
+    """lambda1 of both engines at each gain of the profile (CI-overlap rule)."""
+    checks, rows = [], []
+    for model, gains in profile.lyapunov_gains.items():
+        for beta in gains:
+            p = BalanceParams(beta=beta)
+            seed = profile.seed_for("lyapunov", model, beta)
+            kw = {
+                "duration": profile.lyapunov_duration,
+                "n_realizations": profile.lyapunov_realizations,
+                "seed": seed,
+                "threads": threads,
+            }
+            red = lyapunov(model, p, **kw)
+            full = lyapunov_full(model, p, **kw)
+            status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
+            rows.append(
+                {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
+            )
+            checks.append(
+                Check(
+                    name=f"agreement.lambda1.{model}.beta={beta:g}",
+                    status=status,
+                    values={
+                        "full": {"value": full.lambda1, "ci95": list(full.ci95), "se": full.sem},
+                        "reduced": {"value": red.lambda1, "ci95": list(red.ci95), "se": red.sem},
+                        **v,
+                    },
+                    tolerance="95% CIs overlap: pass if |difference| <= larger half-width, "
+                    "fail if the intervals are disjoint",
+                    details=f"{profile.lyapunov_realizations} realisations x "
+                    f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both engines",
+                )
+            )
+    return checks, {"lyapunov": rows}
+
+
+@dataclass
+class SeriesMetrics:
+    """Per-realisation metrics of one engine's time series (controller 1)."""
+
+    log_rms: np.ndarray
+    band_log_power: np.ndarray  # (R, bands)
+    band_centres: np.ndarray
+    slopes: metrics.PowerLawFit
+    spectrum: tuple[np.ndarray, np.ndarray]
+    tau_hat: np.ndarray  # (R, windows)
+    stcc_times: np.ndarray
+    tau_hat_median: np.ndarray
+    fast_fraction: np.ndarray  # fraction of windows with tau_hat < tau
+    log_velocity_sd: np.ndarray
+
+
+def series_metrics(tr: Trajectory, profile: Profile, tau: float, segment: float) -> SeriesMetrics:
+    """Metrics of controller 1's balancing error and velocities (paper section 3)."""
+    dt = tr.sample_interval
+    e = tr["balancing_error"][..., 0].astype(float)
+    f, s = metrics.power_spectrum(e, dt, segment=segment)
+    lo, hi = profile.spectrum_band
+    lo = max(lo, 2.0 / segment)
+    centres, bands = metrics.band_log_power(f, s, lo, hi, n_bins=8)
+    fit = metrics.fit_two_power_laws(f, s, lo, hi, n_bins=16, n_bootstrap=100, seed=profile.seed)
+    t, lags, r = metrics.stcc(
+        tr["tip_velocity"][..., 0],
+        tr["base_velocity"][..., 0],
+        dt,
+        profile.stcc_window,
+        profile.stcc_max_lag,
+        profile.stcc_stride,
+    )
+    sig = metrics.stcc_significance(round(profile.stcc_window / dt))
+    th = metrics.first_dominant_peak(r, lags, significance=sig)
+    with np.errstate(invalid="ignore"):
+        fast = np.nanmean(np.where(np.isfinite(th), th < tau, np.nan), axis=-1)
+    return SeriesMetrics(
+        log_rms=np.log10(metrics.rms(e)),
+        band_log_power=bands,
+        band_centres=centres,
+        slopes=fit,
+        spectrum=(f, s),
+        tau_hat=th,
+        stcc_times=t,
+        tau_hat_median=np.nanmedian(th, axis=-1),
+        fast_fraction=fast,
+        log_velocity_sd=np.log10(np.std(tr["balancing_error_velocity"][..., 0], axis=-1)),
+    )
+
+
+def trajectory_distance(
+    full: Trajectory, red: Trajectory, window: float = TRAJECTORY_WINDOW
+) -> float:
+    """Relative L2 distance of the balancing errors over [0, window) s, all realisations."""
+    k = int(np.searchsorted(full.time, window))
+    ef = full["balancing_error"][:, :k].astype(float)
+    er = red["balancing_error"][:, :k].astype(float)
+    return float(np.linalg.norm(ef - er) / np.linalg.norm(er))
+
+
+def run_pair(
+    model: str,
+    beta: float,
+    amplitude: float,
+    duration: float,
+    n: int,
+    seed: int,
+    decimate: int,
+    threads: int | None,
+) -> tuple[Trajectory, Trajectory]:
+    """Both engines, same parameters and seed: (full, reduced)."""
+    p = BalanceParams(beta=beta)
+    kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
+    full = simulate_full(model, p, duration, n, seed, fields=(*SERIES_FIELDS, "angle"), **kw)
+    red = simulate(model, p, duration, n, seed, fields=SERIES_FIELDS, **kw)
+    return full, red
+
+
+def compare_series(
+    model: str, mf: SeriesMetrics, mr: SeriesMetrics, label: str, details: str
+) -> list[Check]:
+    """Verdicts for RMS, spectrum (bands and slopes), STCC peaks and velocity spread."""
+    checks = []
+
+    def paired(metric: str, a, b, what: str) -> None:
+        status, v = paired_equivalence(a, b)
+        checks.append(
+            Check(
+                name=f"agreement.{metric}.{model}{label}",
+                status=status,
+                values=v,
+                tolerance="paired equivalence: 95% CI of the per-realisation difference within "
+                "+- the 95% half-width of the reduced model's mean (its statistical resolution)",
+                details=f"{what}; {details}",
+            )
+        )
+
+    paired("log10_rms", mf.log_rms, mr.log_rms, "log10 RMS of the balancing error (Fig. rms)")
+    band_status, band_values = [], []
+    for k, fc in enumerate(mr.band_centres):
+        st, v = paired_equivalence(mf.band_log_power[:, k], mr.band_log_power[:, k])
+        band_status.append(st)
+        band_values.append({"centre_hz": float(fc), "status": st, **v})
+    checks.append(
+        Check(
+            name=f"agreement.spectrum_bands.{model}{label}",
+            status=worst(band_status),
+            values={"bands": band_values},
+            tolerance="paired equivalence per log-spaced band of log10 PSD; worst band decides",
+            details=f"Welch PSD of the balancing error (Fig. pwsp); {details}",
+        )
+    )
+    slope_status = []
+    sv = {}
+    for which in ("slope_low", "slope_high"):
+        st, v = se_agreement(
+            getattr(mf.slopes, which),
+            getattr(mf.slopes, which + "_se"),
+            getattr(mr.slopes, which),
+            getattr(mr.slopes, which + "_se"),
+        )
+        slope_status.append(st)
+        sv[which] = {
+            "full": {"value": getattr(mf.slopes, which), "se": getattr(mf.slopes, which + "_se")},
+            "reduced": {
+                "value": getattr(mr.slopes, which),
+                "se": getattr(mr.slopes, which + "_se"),
+            },
+            **v,
+        }
+    checks.append(
+        Check(
+            name=f"agreement.spectral_slopes.{model}{label}",
+            status=worst(slope_status),
+            values=sv,
+            tolerance="bootstrap standard errors: pass within 2 sigma, fail beyond 3 sigma",
+            details=f"two power laws fitted to the mean spectrum (Fig. pwsp); {details}",
+        )
+    )
+    paired(
+        "stcc_peak_median",
+        mf.tau_hat_median,
+        mr.tau_hat_median,
+        "median first dominant STCC peak tau_hat of R(x_T', x_M') (Fig. sccpeak)",
+    )
+    paired(
+        "stcc_fast_fraction",
+        mf.fast_fraction,
+        mr.fast_fraction,
+        "fraction of windows with tau_hat < tau (Fig. sccpeak:pdf)",
+    )
+    paired(
+        "log10_velocity_sd",
+        mf.log_velocity_sd,
+        mr.log_velocity_sd,
+        "log10 SD of the velocity error (Fig. velo)",
+    )
+    return checks
+
+
+def series_checks(profile: Profile, threads: int | None) -> tuple[list[Check], dict]:
+    """Time-series agreement at the paper's gains, small amplitude."""
+    checks, data = [], {}
+    for model, beta in PAPER_BETA.items():
+        seed = profile.seed_for("series", model)
+        full, red = run_pair(
+            model,
+            beta,
+            profile.amplitude,
+            profile.series_duration,
+            profile.series_realizations,
+            seed,
+            profile.decimate,
+            threads,
+        )
+        mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
+        mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
+        max_angle = float(np.max(full.attrs["max_abs_angle"]))
+        details = (
+            f"beta {beta}, amplitude {profile.amplitude:g} m, "
+            f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
+            f"largest |theta| {max_angle:.2g} rad"
+        )
+        checks += compare_series(model, mf, mr, "", details)
+        rel = trajectory_distance(full, red)
+        checks.append(
+            Check(
+                name=f"agreement.trajectory.{model}",
+                status=PASS if rel < 0.01 and max_angle < small_angle_limit() else FAIL,
+                values={"relative_l2": rel, "max_abs_angle": max_angle},
+                tolerance="relative L2 distance of the balancing errors < 1% (issue 3), "
+                "in the small-angle regime",
+                details=details,
+            )
+        )
+        data[model] = {"full": full, "reduced": red, "metrics_full": mf, "metrics_reduced": mr}
+    return checks, data
+
+
+def amplitude_scan(profile: Profile, threads: int | None) -> tuple[list[Check], list[dict]]:
+    """Agreement of RMS, spectrum bands and trajectory vs initial amplitude.
+
+    Locates, per model and metric, the largest |theta| at which the models
+    still agree, and checks that they agree everywhere inside the small-angle
+    regime and disagree far outside it.
+    """
+    rows, checks = [], []
+    limit = small_angle_limit()
+    seg = profile.scan_duration / 4
+    for model, beta in PAPER_BETA.items():
+        seed = profile.seed_for("scan", model)
+        for amp in profile.scan_amplitudes:
+            full, red = run_pair(
+                model,
+                beta,
+                amp,
+                profile.scan_duration,
+                profile.scan_realizations,
+                seed,
+                profile.decimate,
+                threads,
+            )
+            ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
+            rel = trajectory_distance(full, red)
+            dt = full.sample_interval
+            st_rms, v_rms = paired_equivalence(
+                np.log10(metrics.rms(ef[..., 0])), np.log10(metrics.rms(er[..., 0]))
+            )
+            f, sf = metrics.power_spectrum(ef[..., 0], dt, segment=seg)
+            _, sr = metrics.power_spectrum(er[..., 0], dt, segment=seg)
+            _, bf = metrics.band_log_power(f, sf, 2.0 / seg, profile.spectrum_band[1], 6)
+            _, br = metrics.band_log_power(f, sr, 2.0 / seg, profile.spectrum_band[1], 6)
+            st_band = worst([paired_equivalence(bf[:, k], br[:, k])[0] for k in range(bf.shape[1])])
+            max_angle = float(np.max(full.attrs["max_abs_angle"]))
+            rows.append(
+                {
+                    "model": model,
+                    "amplitude": amp,
+                    "max_abs_angle": max_angle,
+                    "small_angle": max_angle <= limit,
+                    "relative_l2": rel,
+                    "trajectory": PASS if rel < 0.01 else FAIL,
+                    "log10_rms": st_rms,
+                    "spectrum_bands": st_band,
+                    "rms_difference_ci95": v_rms.get("difference_ci95"),
+                    "fell": max_angle > np.pi / 2,
+                }
+            )
+    for model in PAPER_BETA:
+        mine = [r for r in rows if r["model"] == model]
+        inside = [r for r in mine if r["small_angle"]]
+        outside = [r for r in mine if not r["small_angle"]]
+        largest = {}
+        for metric in ("trajectory", "log10_rms", "spectrum_bands"):
+            # up to the first amplitude at which the metric stops agreeing
+            largest[metric] = None
+            for r in sorted(mine, key=lambda r: r["amplitude"]):
+                if r[metric] != PASS:
+                    break
+                largest[metric] = r["max_abs_angle"]
+        inside_ok = all(r[m] == PASS for r in inside for m in ("trajectory", "log10_rms"))
+        checks.append(
+            Check(
+                name=f"agreement.small_angle_regime.{model}",
+                status=PASS if inside and inside_ok else FAIL,
+                values={
+                    "amplitudes": [r["amplitude"] for r in inside],
+                    "largest_agreeing_angle": largest,
+                },
+                tolerance=f"trajectory (rel. L2 < 1%) and RMS (paired equivalence) agree at every "
+                f"amplitude whose largest |theta| stays below {limit:.3f} rad",
+                details=f"beta {PAPER_BETA[model]}, {profile.scan_realizations} x "
+                f"{profile.scan_duration:g} s per amplitude",
+            )
+        )
+        far = [r for r in outside if r["max_abs_angle"] > 3 * limit]
+        breaks = [r for r in far if r["trajectory"] == FAIL or r["log10_rms"] == FAIL]
+        checks.append(
+            Check(
+                name=f"agreement.breakdown_detected.{model}",
+                status=PASS if far and len(breaks) == len(far) else FAIL,
+                values={
+                    "far_amplitudes": [r["amplitude"] for r in far],
+                    "disagreeing": [r["amplitude"] for r in breaks],
+                },
+                tolerance=f"every amplitude reaching |theta| > {3 * limit:.2f} rad must disagree "
+                "(trajectory or RMS fails): the suite detects the end of the linear regime",
+                details="a suite that found agreement there would be blind",
+            )
+        )
+    return checks, rows

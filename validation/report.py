@@ -1,0 +1,221 @@
+"""Writing results.json, report.md, report.html; comparing with a baseline.
+
+Regression rule (``--baseline FILE``): every number that the results carry
+with a standard error (``{"value": v, "se": s}``) is compared with the same
+number in the baseline; it has moved when |v - v_base| > 4 sqrt(s^2 +
+s_base^2), i.e. beyond four combined standard errors (a false alarm rate
+below 1e-4 per number for Gaussian estimates).  With the same seeds and
+versions the numbers are identical, so any move flags a change in the engine,
+the model or the code.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .stats import Check
+
+Z_REGRESSION = 4.0
+
+
+def _clean(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_clean(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _clean(v.tolist())
+    if isinstance(v, np.generic):
+        return _clean(v.item())
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def write_json(results: dict, path: Path) -> Path:
+    path.write_text(json.dumps(_clean(results), indent=1))
+    return path
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+    return str(v)
+
+
+def _check_value(c: dict) -> str:
+    v = c["values"]
+    for key in ("value", "relative_l2", "difference_mean", "difference"):
+        if key in v:
+            return f"{key} = {_fmt(v[key])}"
+    if "full" in v and isinstance(v["full"], dict) and "value" in v["full"]:
+        return f"full {_fmt(v['full']['value'])}, reduced {_fmt(v['reduced']['value'])}"
+    return ""
+
+
+def markdown(results: dict, regression: list[Check] | None = None) -> str:
+    lines = [
+        "# cipval validation report",
+        "",
+        f"Profile **{results['profile']}**, overall status **{results['status'].upper()}** "
+        f"({results['counts']['pass']} pass, {results['counts']['fail']} fail, "
+        f"{results['counts']['inconclusive']} inconclusive), {results['elapsed_s']} s.",
+        "",
+        "Versions: " + ", ".join(f"{k} {v}" for k, v in results["versions"].items()),
+        "",
+        "## Checks",
+        "",
+        "| check | status | value | tolerance |",
+        "|---|---|---|---|",
+    ]
+    for c in results["checks"]:
+        lines.append(f"| {c['name']} | {c['status']} | {_check_value(c)} | {c['tolerance']} |")
+    if regression:
+        lines += [
+            "",
+            "## Regression against the baseline",
+            "",
+            "| number | status | value | baseline | z |",
+            "|---|---|---|---|---|",
+        ]
+        for c in regression:
+            v = c.values
+            lines.append(f"| {c.name} | {c.status} | {_fmt(v.get('value'))} | "
+                         f"{_fmt(v.get('baseline'))} | {_fmt(v.get('z'))} |")  # fmt: skip
+    lines += ["", "## Paper reproduction (reduced model)", "",
+              "| quantity | paper | ours | uncertainty | status | settings | note |",
+              "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in results["paper"]:
+        lines.append(f"| {r['quantity']} | {_fmt(r['paper'])} | {_fmt(r['ours'])} | "
+                     f"{_fmt(r['uncertainty'])} | {r['status']} | {r['settings']} | "
+                     f"{r.get('note', '')} |")  # fmt: skip
+    lines += ["", "## Amplitude scan (full vs reduced, same noise)", "",
+              "| model | initial error (m) | largest abs theta (rad) | rel. L2 | trajectory | RMS "
+              "| spectrum |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in results["amplitude_scan"]:
+        lines.append(f"| {r['model']} | {r['amplitude']:g} | {r['max_abs_angle']:.3g} | "
+                     f"{r['relative_l2']:.3g} | {r['trajectory']} | {r['log10_rms']} | "
+                     f"{r['spectrum_bands']} |")  # fmt: skip
+    if results["figures"]:
+        lines += ["", "## Figures", ""]
+        lines += [f"![{f}]({f})" for f in results["figures"]]
+    lines += ["", "## Settings", "", "```json", json.dumps(_clean(results["settings"]), indent=1),
+              "```", ""]  # fmt: skip
+    return "\n".join(lines)
+
+
+def html_report(md: str, out_dir: Path) -> str:
+    """A self-contained HTML page: the Markdown's tables and text, figures embedded."""
+    body = []
+    in_table = False
+    for line in md.splitlines():
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            if set("".join(cells)) <= {"-"}:
+                continue
+            tag = "th" if not in_table else "td"
+            if not in_table:
+                body.append("<table>")
+                in_table = True
+            cls = ""
+            if tag == "td" and len(cells) > 1:
+                st = cells[1]
+                cls = f' class="{st}"' if st in ("pass", "fail", "inconclusive") else ""
+            body.append(f"<tr{cls}>" + "".join(f"<{tag}>{html.escape(c)}</{tag}>" for c in cells)
+                        + "</tr>")  # fmt: skip
+            continue
+        if in_table:
+            body.append("</table>")
+            in_table = False
+        if line.startswith("!["):
+            name = line[line.index("(") + 1 : -1]
+            data = base64.b64encode((out_dir / name).read_bytes()).decode()
+            body.append(f'<figure><img src="data:image/png;base64,{data}" alt="{name}">'
+                        f"<figcaption>{html.escape(name)}</figcaption></figure>")  # fmt: skip
+        elif line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            body.append(f"<h{level}>{html.escape(line.lstrip('# '))}</h{level}>")
+        elif line.startswith("```"):
+            body.append("<pre>" if line == "```json" else "</pre>")
+        elif line:
+            text = html.escape(line).replace("**", "")
+            body.append(f"<p>{text}</p>")
+    if in_table:
+        body.append("</table>")
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:"
+             "collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
+             "tr.pass td:nth-child(2){background:#d4f4d4}tr.fail td:nth-child(2)"
+             "{background:#f8d0d0}tr.inconclusive td:nth-child(2){background:#f8f0c0}"
+             "img{max-width:100%}")  # fmt: skip
+    return (f"<!doctype html><html><head><meta charset='utf-8'><title>cipval report</title>"
+            f"<style>{style}</style></head><body>{''.join(body)}</body></html>")  # fmt: skip
+
+
+def write_reports(results: dict, out_dir: Path, regression: list[Check] | None = None) -> None:
+    write_json(results, out_dir / "results.json")
+    md = markdown(results, regression)
+    (out_dir / "report.md").write_text(md)
+    (out_dir / "report.html").write_text(html_report(md, out_dir))
+
+
+def summary_table(results: dict, regression: list[Check] | None = None) -> str:
+    rows = [(c["name"], c["status"], _check_value(c)) for c in results["checks"]]
+    rows += [(c.name, c.status, f"z = {_fmt(c.values.get('z'))}") for c in regression or []]
+    w = max(len(r[0]) for r in rows)
+    out = [f"{'check':<{w}}  {'status':<12}  value", "-" * (w + 40)]
+    out += [f"{n:<{w}}  {s:<12}  {v}" for n, s, v in rows]
+    c = results["counts"]
+    out.append(f"\n{c['pass']} pass, {c['fail']} fail, {c['inconclusive']} inconclusive "
+               f"({results['profile']} profile, {results['elapsed_s']} s)")  # fmt: skip
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------ regression
+def regression_numbers(results: dict) -> dict[str, tuple[float, float]]:
+    """Every number carried with a standard error, by a dotted path."""
+    out: dict[str, tuple[float, float]] = {}
+
+    def walk(prefix: str, v: Any) -> None:
+        if isinstance(v, dict):
+            if "value" in v and "se" in v and v["value"] is not None and v["se"] is not None:
+                out[prefix] = (float(v["value"]), float(v["se"]))
+            for k, x in v.items():
+                walk(f"{prefix}.{k}", x)
+
+    for c in results["checks"]:
+        walk(c["name"], c["values"])
+    return out
+
+
+def compare_with_baseline(results: dict, baseline: dict) -> list[Check]:
+    """One check per number in both results (rule in the module docstring)."""
+    new = regression_numbers(_clean(results))
+    old = regression_numbers(baseline)
+    checks = []
+    for name in sorted(set(new) | set(old)):
+        if name not in new or name not in old:
+            checks.append(Check(f"regression.{name}", "fail",
+                                {"value": new.get(name, (None,))[0],
+                                 "baseline": old.get(name, (None,))[0]},
+                                details="number missing on one side"))  # fmt: skip
+            continue
+        (v, s), (vb, sb) = new[name], old[name]
+        sigma = math.hypot(s, sb)
+        z = abs(v - vb) / sigma if sigma > 0 else (0.0 if v == vb else math.inf)
+        checks.append(Check(
+            f"regression.{name}", "pass" if z <= Z_REGRESSION else "fail",
+            {"value": v, "baseline": vb, "sigma": sigma, "z": z},
+            tolerance=f"|value - baseline| <= {Z_REGRESSION:g} combined standard errors",
+        ))  # fmt: skip
+    return checks
