@@ -96,6 +96,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_linearize)
     add_run_commands(sub)
+    add_sweep_commands(sub)
 
     p = sub.add_parser("simulate", help="time series of either engine to a .npz file")
     _model_args(p)
@@ -205,3 +206,90 @@ def add_run_commands(sub: argparse._SubParsersAction) -> None:
                    help="use an existing results.json instead of running")  # fmt: skip
     p.add_argument("--workers", type=int, default=None)
     p.set_defaults(func=cmd_baseline)
+
+
+# ---------------------------------------------------------------- sweep
+def cmd_sweep(a: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from validation.sweep import (
+        Study,
+        default_studies_dir,
+        parse_grid,
+        run_sweep,
+        write_sweep_report,
+    )
+
+    if a.study:
+        path = Path(a.study)
+        if not path.exists() and (default_studies_dir() / f"{a.study}.toml").exists():
+            path = default_studies_dir() / f"{a.study}.toml"
+        study = Study.from_toml(path)
+        d = study.as_dict()
+    else:
+        d = {"name": "cli"}
+    grid = {**d.get("grid", {}), **parse_grid(a.grid or [])}
+    fixed = {**d.get("fixed", {}), **parse_grid(a.set or [])}
+    fixed = {k: v[0] if isinstance(v, list) and len(v) == 1 else v for k, v in fixed.items()}
+    for k in ("model", "engine", "realizations", "duration", "seed"):
+        if getattr(a, k) is not None:
+            d[k] = getattr(a, k)
+    if a.metrics:
+        d["metrics"] = [m.strip() for m in a.metrics.split(",") if m.strip()]
+    d["grid"], d["fixed"] = grid, fixed
+    study = Study(**d)
+    if a.workers is not None and a.workers < 1:
+        raise ParameterError(f"--workers must be an integer >= 1, got {a.workers}")
+    out = Path(a.out or f"sweep-{study.name}")
+    t = time.perf_counter()
+    rep = run_sweep(study, out, workers=a.workers, scheduler=a.scheduler, progress=True)
+    report = write_sweep_report(study, out)
+    print(f"sweep {study.name}: {rep.computed} points computed, {rep.reused} reused from {out}, "
+          f"{time.perf_counter() - t:.1f} s")  # fmt: skip
+    print(f"dataset: {rep.dataset_path}\nreport: {report}")
+    return EXIT_OK
+
+
+def cmd_sweep_plot(a: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import xarray as xr
+
+    from validation.sweep import plot_metric
+
+    path = Path(a.dataset)
+    if path.is_dir():
+        path = path / "sweep.nc"
+    if not path.is_file():
+        raise ParameterError(f"no sweep dataset at {a.dataset!r}")
+    with xr.open_dataset(path, engine="scipy") as ds:
+        png = plot_metric(ds.load(), a.metric, a.x, Path(a.out or f"{a.metric}_vs_{a.x}.png"))
+    print(png)
+    return EXIT_OK
+
+
+def add_sweep_commands(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sweep", help="parameter study over a grid (resumable; local or Dask)")
+    p.add_argument("study", nargs="?", help="study TOML file, or a shipped study: "
+                   "rod_length, engine_settings")  # fmt: skip
+    p.add_argument("--grid", action="append", metavar="NAME=V1,V2,...", help="swept setting")
+    p.add_argument("--set", action="append", metavar="NAME=V", help="fixed setting")
+    p.add_argument("--model", choices=("single", "coupled"))
+    p.add_argument("--engine", choices=("reduced", "mujoco"))
+    p.add_argument("--metrics", help="comma list: lambda1,rms,max_angle,agreement,tau_hat,slopes")
+    p.add_argument("--realizations", type=int)
+    p.add_argument("--duration", type=float)
+    p.add_argument("--seed", type=int)
+    p.add_argument("--out", metavar="DIR", help="sweep directory (default sweep-NAME)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local processes (default: one per core)")  # fmt: skip
+    p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://host:8786")
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("sweep-plot", help="a sweep metric against a parameter, with 95% bands")
+    p.add_argument("dataset", help="sweep directory or sweep.nc")
+    p.add_argument("--metric", required=True)
+    p.add_argument("--x", required=True, help="the swept parameter on the x axis")
+    p.add_argument("--out", metavar="FILE.png")
+    p.set_defaults(func=cmd_sweep_plot)

@@ -1,0 +1,142 @@
+"""Parameter sweeps: datasets, seeds, resume after a kill, Dask."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from reduced import ParameterError
+from validation.sweep import Study, evaluate_point, point_seed, run_sweep
+
+
+def small_study(**kw) -> Study:
+    d = {
+        "name": "t", "model": "coupled", "engine": "mujoco",
+        "metrics": ("rms", "agreement", "max_angle"), "realizations": 2, "duration": 2.0,
+        "seed": 3, "fixed": {"beta": 21.0},
+        "grid": {"rod_length_ratio": [0.5, 2.0], "amplitude": [0.001, 0.1]},
+    }  # fmt: skip
+    d.update(kw)
+    return Study(**d)
+
+
+def open_ds(path):
+    with xr.open_dataset(path, engine="scipy") as ds:
+        return ds.load()
+
+
+def test_dataset_has_a_dimension_per_parameter_and_attributes(tmp_path):
+    study = small_study(common_random_numbers=True)
+    rep = run_sweep(study, tmp_path / "a", workers=1)
+    ds = open_ds(rep.dataset_path)
+    assert ds["rms"].dims == ("rod_length_ratio", "amplitude", "realization")
+    assert ds.sizes == {"rod_length_ratio": 2, "amplitude": 2, "realization": 2}
+    assert json.loads(ds.attrs["study"])["name"] == "t"
+    assert "mujoco" in json.loads(ds.attrs["versions"])
+    # in the linear regime the rod length does not matter (reduced model: l drops out)
+    small = ds["agreement"].sel(amplitude=0.001)
+    np.testing.assert_allclose(small.sel(rod_length_ratio=0.5), small.sel(rod_length_ratio=2.0),
+                               rtol=1e-6)  # fmt: skip
+    assert float(small.max()) < 0.01
+
+
+def test_seeds_per_point_do_not_depend_on_order_or_workers(tmp_path):
+    study = small_study()
+    seeds = {point_seed(study, p) for p in study.points()}
+    assert len(seeds) == 4
+    crn = small_study(common_random_numbers=True)
+    assert {point_seed(crn, p) for p in crn.points()} == {3}
+    a = open_ds(run_sweep(study, tmp_path / "one", workers=1).dataset_path)
+    b = open_ds(run_sweep(study, tmp_path / "two", workers=2).dataset_path)
+    xr.testing.assert_identical(a, b)
+
+
+def test_killed_sweep_resumes_without_recomputing(tmp_path):
+    """SIGKILL a sweep once some points are on disk; the rerun computes only the rest
+    and gives the same dataset as an uninterrupted run."""
+    study_file = tmp_path / "s.toml"
+    study_file.write_text("""
+[study]
+name = "kill"
+model = "coupled"
+engine = "reduced"
+metrics = ["rms", "lambda1"]
+realizations = 2
+duration = 40.0
+seed = 5
+[grid]
+beta = [20.0, 20.5, 21.0, 21.5, 22.0, 22.5, 23.0, 23.5]
+""")
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "validation.cli", "sweep", str(study_file), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            start_new_session=True)  # fmt: skip
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        done = list((out / "points").glob("*.json")) if (out / "points").exists() else []
+        if len(done) >= 2 or proc.poll() is not None:
+            break
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = len(list((out / "points").glob("*.json")))
+    assert 1 <= before < 8, "the sweep must be killed halfway"
+    res = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    assert f"{8 - before} points computed, {before} reused" in res.stdout
+    clean = run_sweep(Study.from_toml(study_file), tmp_path / "clean", workers=1)
+    xr.testing.assert_identical(open_ds(out / "sweep.nc"), open_ds(clean.dataset_path))
+
+
+def test_interrupted_in_process_keeps_finished_points(tmp_path):
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0, 21.0, 22.0]})
+    seen = []
+
+    def stop_after_two(point):
+        seen.append(point)
+        if len(seen) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(study, tmp_path / "r", workers=1, on_point=stop_after_two)
+    rep = run_sweep(study, tmp_path / "r", workers=1)
+    assert (rep.computed, rep.reused) == (1, 2)
+
+
+def test_dask_local_cluster_gives_the_same_dataset(tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0, 21.0, 22.0]})
+    local = open_ds(run_sweep(study, tmp_path / "local", workers=2).dataset_path)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:  # fmt: skip
+        rep = run_sweep(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
+    xr.testing.assert_identical(local, open_ds(rep.dataset_path))
+
+
+def test_study_validation_names_the_problem(tmp_path):
+    with pytest.raises(ParameterError, match="unknown setting 'rod'"):
+        small_study(grid={"rod": [1.0]})
+    with pytest.raises(ParameterError, match="beta"):
+        small_study(grid={"beta": [20.0, -1.0]})
+    with pytest.raises(ParameterError, match="metrics"):
+        small_study(metrics=("lambda2",))
+    with pytest.raises(ParameterError, match="integrator"):
+        small_study(grid={"integrator": ["Euler", "Leapfrog"]})
+    run_sweep(small_study(grid={"beta": [20.0]}, engine="reduced", metrics=("rms",)),
+              tmp_path / "x")  # fmt: skip
+    with pytest.raises(ParameterError, match="another study"):
+        run_sweep(small_study(grid={"beta": [21.0]}, engine="reduced", metrics=("rms",)),
+                  tmp_path / "x")  # fmt: skip
+
+
+def test_evaluate_point_is_pure():
+    study = small_study(engine="reduced", metrics=("rms", "lambda1"))
+    p = study.points()[0]
+    assert evaluate_point(study.as_dict(), p) == evaluate_point(study.as_dict(), p)
