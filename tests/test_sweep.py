@@ -140,3 +140,12 @@ def test_evaluate_point_is_pure():
     study = small_study(engine="reduced", metrics=("rms", "lambda1"))
     p = study.points()[0]
     assert evaluate_point(study.as_dict(), p) == evaluate_point(study.as_dict(), p)
+
+
+def test_string_parameters_and_report(tmp_path):
+    from validation.sweep import write_sweep_report
+
+    study = small_study(grid={"integrator": ["Euler", "RK4"]}, metrics=("agreement",))
+    run_sweep(study, tmp_path / "s", workers=1)
+    report = write_sweep_report(study, tmp_path / "s").read_text()
+    assert "| RK4 |" in report and (tmp_path / "s" / "sweep_agreement.png").exists()

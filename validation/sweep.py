@@ -434,8 +434,12 @@ def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
     return ds
 
 
+def _is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
 def _coord(values: list) -> np.ndarray:
-    if all(isinstance(v, int | float) and not isinstance(v, bool) for v in values):
+    if all(_is_number(v) for v in values):
         return np.array(values, dtype=float)
     return np.array([str(v) for v in values])
 
@@ -547,7 +551,7 @@ def write_sweep_report(study: Study, out_dir: Path) -> Path:
     head = dims + [f"{m} (mean +- 95%)" for m in per]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for point in study.points():
-        sel = {k: (str(v) if ds[k].dtype.kind in "US" else float(v)) for k, v in point.items()}
+        sel = {k: (float(v) if _is_number(v) else str(v)) for k, v in point.items()}
         cells = [str(point[k]) for k in dims]
         for m in per:
             mean, hw = mean_ci(ds, m)
