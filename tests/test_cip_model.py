@@ -221,3 +221,24 @@ def test_full_lyapunov_same_seed_same_numbers_whatever_threads():
     a = lyapunov_full("coupled", p, 5.0, 3, seed=4, threads=1)
     b = lyapunov_full("coupled", p, 5.0, 3, seed=4, threads=2)
     np.testing.assert_array_equal(a.per_realization, b.per_realization)
+
+
+def test_pd_controller_balances_the_cip():
+    """The authors' earlier PD-controlled CIP: F = M (kp e + kd e'), delayed one step.
+
+    Linear error dynamics e'' + (gamma + kd) e' + (kp - alpha_eff) e = 0 with
+    alpha_eff = alpha (1 + m/M): kp > alpha_eff decays at the slow root, kp < alpha falls."""
+    from cip.runner import Controller
+
+    p = BalanceParams(beta=0.0, nu=0.0, tau=0.001)
+    kp, kd = 60.0, 10.0
+    good = simulate_full("coupled", p, 3.0, 1, amplitude=1e-4,
+                         controller=Controller("pd", kp=kp, kd=kd))  # fmt: skip
+    e = good["balancing_error"][0, :, 0]
+    rate = np.log(e[-1] / e[2000]) / (good.time[-1] - good.time[2000])
+    slow = max(np.roots([1.0, 50.0 + kd, kp - 22.0 * 1.001]).real)
+    assert rate == pytest.approx(slow, rel=0.01)
+    assert good.attrs["controller"] == "pd"
+    weak = simulate_full("single", p, 3.0, 1, amplitude=0.02,
+                         controller=Controller("pd", kp=10.0, kd=10.0))  # fmt: skip
+    assert np.abs(weak["balancing_error"][0, -1, 0]) > 0.02

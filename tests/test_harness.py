@@ -32,11 +32,11 @@ def test_smoke_profile_runs_every_stage_and_passes(smoke_run):
     ):  # fmt: skip
         assert expected in names
     assert {r["quantity"] for r in results["paper"]} >= {"beta* single (lambda1 = 5e-4)"}
-    assert len(results["figures"]) == 9
+    assert len(results["figures"]) == 11
     for f in results["figures"]:
         assert (out / f).stat().st_size > 5000
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64") == 9
+    assert html.count("data:image/png;base64") == 11
     assert "Paper reproduction" in (out / "report.md").read_text()
     assert results["versions"]["mujoco"]
 

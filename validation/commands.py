@@ -179,12 +179,14 @@ def cmd_baseline(a: argparse.Namespace) -> int:
             raise ParameterError(f"--from: {a.from_results!r} is not a cip-validate results file")
         shutil.copyfile(src, out)
     else:
+        import tempfile
+
         from validation.harness import run_validation
         from validation.report import write_json
 
-        tmp = out.parent / (out.stem + "_run")
-        results = run_validation(_profile(a.profile), tmp, workers=a.workers, progress=True,
-                                 figures=False)  # fmt: skip
+        with tempfile.TemporaryDirectory() as tmp:
+            results = run_validation(_profile(a.profile), Path(tmp), workers=a.workers,
+                                     progress=True, figures=False)  # fmt: skip
         write_json(results, out)
     print(f"baseline written: {out}")
     return 0

@@ -28,14 +28,21 @@ from .stats import FAIL, INCONCLUSIVE, PASS
 
 
 def package_versions() -> dict[str, str]:
+    """Versions of Python, the numerical stack, MuJoCo and cipval itself."""
+    from importlib.metadata import PackageNotFoundError, version
+
     import matplotlib
     import mujoco
     import numba
     import scipy
 
+    try:
+        cipval = version("cipval")
+    except PackageNotFoundError:
+        cipval = "not installed"
     return {"python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "numba": numba.__version__, "mujoco": mujoco.__version__,
-            "matplotlib": matplotlib.__version__}  # fmt: skip
+            "matplotlib": matplotlib.__version__, "cipval": cipval}  # fmt: skip
 
 
 def run_validation(
@@ -47,7 +54,7 @@ def run_validation(
     t0 = time.perf_counter()
     stages = ["lambda1 agreement", "time-series agreement", "amplitude scan",
               "critical gains", "lambda1 curve", "RMS and velocity", "STCC and spectra",
-              "figures"]  # fmt: skip
+              "rod-length study", "figures"]  # fmt: skip
     bar = tqdm(stages, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     checks, paper_rows = [], []
@@ -97,13 +104,29 @@ def run_validation(
     paper_rows += rows
     done("STCC and spectra")
 
+    stage("rod-length study")
+    c, rod_rows, rod_ds = agreement.rod_length_study(profile, out_dir, workers)
+    checks += c
+    done("rod-length study")
+
     stage("figures")
     figure_files = []
     if figures:
         figure_files = plots.paper_figures(
-            out_dir, curve=curve, lyapunov_points=fig["lyapunov_points"], bstar=bstar,
-            series=series, rms=rms_data, peaks=peak_data, scan=scan_rows,
-        )  # fmt: skip
+            out_dir,
+            curve=curve,
+            lyapunov_points=fig["lyapunov_points"],
+            bstar=bstar,
+            series=series,
+            rms=rms_data,
+            peaks=peak_data,
+            scan=scan_rows,
+        )
+        from .sweep import plot_metric
+
+        for metric in ("max_angle", "agreement"):
+            figure_files.append(plot_metric(rod_ds, metric, "rod_length_ratio",
+                                            out_dir / f"fig_rod_length_{metric}.png"))  # fmt: skip
     done("figures")
     bar.close()
 
@@ -117,6 +140,7 @@ def run_validation(
         "checks": [ch.as_dict() for ch in checks],
         "paper": paper_rows,
         "amplitude_scan": scan_rows,
+        "rod_length": rod_rows,
         "figures": [str(p.name) for p in figure_files],
         "versions": package_versions(),
         "workers": workers,

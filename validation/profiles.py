@@ -52,6 +52,14 @@ class Profile:
     peak_realizations: int = 16
     spectrum_duration: float = 1200.0
     spectrum_realizations: int = 8
+    # rod-length study (validation/studies/rod_length.toml, these settings override it)
+    rod_study: dict = field(
+        default_factory=lambda: {
+            "realizations": 6,
+            "duration": 20.0,
+            "grid": {"rod_length_ratio": [0.1, 0.2, 0.5, 1.0, 2.0, 5.0], "amplitude": [0.001, 0.1]},
+        }
+    )
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -81,6 +89,7 @@ PROFILES = {
         peak_realizations=100,
         spectrum_duration=1200.0,
         spectrum_realizations=32,
+        rod_study={},  # the shipped study as it is
     ),
     # a tiny profile for the test suite: every code path, seconds
     "smoke": Profile(
@@ -104,5 +113,10 @@ PROFILES = {
         peak_realizations=3,
         spectrum_duration=60.0,
         spectrum_realizations=3,
+        rod_study={
+            "realizations": 3,
+            "duration": 8.0,
+            "grid": {"rod_length_ratio": [0.2, 2.0], "amplitude": [0.001, 0.1]},
+        },
     ),
 }

@@ -107,6 +107,23 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
         lines.append(f"| {r['model']} | {r['amplitude']:g} | {r['max_abs_angle']:.3g} | "
                      f"{r['relative_l2']:.3g} | {r['trajectory']} | {r['log10_rms']} | "
                      f"{r['spectrum_bands']} |")  # fmt: skip
+    if results.get("rod_length"):
+        lines += [
+            "",
+            "## Rod-length study (MuJoCo, coupled, same noise at every point)",
+            "",
+            "| l / L | initial error (m) | largest abs theta (rad) | rel. L2 to reduced | "
+            "log10 RMS | median tau_hat (s) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for r in results["rod_length"]:
+            cells = [
+                _fmt(r.get(k)) + (f" +- {r[k + '_ci95']:.2g}" if k + "_ci95" in r else "")
+                for k in ("max_angle", "agreement", "rms", "tau_hat")
+            ]
+            lines.append(
+                f"| {r['rod_length_ratio']:g} | {r['amplitude']:g} | " + " | ".join(cells) + " |"
+            )
     if results["figures"]:
         lines += ["", "## Figures", ""]
         lines += [f"![{f}]({f})" for f in results["figures"]]

@@ -71,6 +71,18 @@ PHYSICAL_KEYS = (
 RUN_KEYS = ("amplitude",)
 SETTINGS = REDUCED_KEYS + PHYSICAL_KEYS + RUN_KEYS
 METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
+STCC_MIN_DURATION = 5.3 + 1.0
+LABELS = {
+    "lambda1": "largest Lyapunov exponent lambda1 (1/s)",
+    "rms": "log10 RMS of the balancing error (log10 m)",
+    "max_angle": "largest |theta| (rad)",
+    "agreement": "relative L2 distance to the reduced model (first 10 s)",
+    "tau_hat": "median first STCC peak tau_hat (s)",
+    "rod_length_ratio": "rod length l / pendulum length L",
+    "mass_ratio": "bob / cart mass m/M",
+    "dt": "time step (s)",
+    "amplitude": "initial balancing error (m)",
+}
 PER_REALIZATION = ("lambda1", "rms", "max_angle", "agreement", "tau_hat")
 
 
@@ -111,6 +123,11 @@ class Study:
         for k, vals in self.grid.items():
             if not isinstance(vals, list) or not vals:
                 raise ParameterError(f"grid.{k} must be a non-empty list, got {vals!r}")
+        if "tau_hat" in self.metrics and self.duration < STCC_MIN_DURATION:
+            raise ParameterError(
+                f"duration must be >= {STCC_MIN_DURATION} s for the tau_hat metric "
+                f"(STCC window 5 s + lags 0.3 s), got {self.duration}"
+            )
         if self.realizations < 2:
             raise ParameterError(f"realizations must be >= 2, got {self.realizations}")
         # validate every point's parameters up front: a bad value fails before any work
@@ -140,8 +157,15 @@ class Study:
         return d
 
     def fingerprint(self) -> str:
-        """Hash of everything that determines the results (the output dir must match it)."""
-        return hashlib.sha256(json.dumps(self.as_dict(), sort_keys=True).encode()).hexdigest()[:16]
+        """Hash of what determines the results: the study and the package versions.
+
+        A sweep directory holding another fingerprint is never reused, so
+        points computed with another engine or library version are not mixed in.
+        """
+        from .harness import package_versions
+
+        key = {"study": self.as_dict(), "versions": package_versions()}
+        return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def point_key(point: dict[str, Any]) -> str:
@@ -283,8 +307,9 @@ class Store:
             old = json.loads(meta.read_text())
             if old.get("fingerprint") != study.fingerprint():
                 raise ParameterError(
-                    f"--out {self.dir} holds another study ({old.get('name')!r}, fingerprint "
-                    f"{old.get('fingerprint')}); use a new directory"
+                    f"--out {self.dir} holds another study or one made with other package "
+                    f"versions ({old.get('name')!r}, fingerprint {old.get('fingerprint')}); "
+                    "use a new directory"
                 )
         else:
             _atomic_write(meta, json.dumps({"name": study.name,
@@ -522,8 +547,10 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
         and xs.max() / xs.min() > 20
     ):
         ax.set_xscale("log")
-    ax.set_xlabel(x)
-    ax.set_ylabel(metric)
+    ax.set_xlabel(LABELS.get(x, x))
+    ax.set_ylabel(LABELS.get(metric, metric))
+    n = ds.sizes.get("realization", 1)
+    ax.set_title(f"mean over realisations, 95% band ({n} realisations)", fontsize=8)
     ax.legend(fontsize=7)
     fig.savefig(path, dpi=110)
     plt.close(fig)
