@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from reduced._driver import run_blocks
-from reduced.lyapunov import LyapunovResult, mean_ci95
+from reduced.lyapunov import LyapunovResult, check_transient, mean_ci95
 from reduced.noise import GainNoise
 from reduced.params import BalanceParams, ParameterError, check_count, whole_steps
 from reduced.simulate import _check_duration
@@ -73,9 +73,7 @@ def lyapunov_full(
     nc = 1 if model == "single" else 2
     duration = _check_duration(duration)
     n_steps = whole_steps("duration", duration, params.dt)
-    transient = min(10.0, duration / 10) if transient is None else float(transient)
-    if not (0 <= transient < duration):
-        raise ParameterError(f"transient must be in [0, duration = {duration}) s, got {transient}")
+    transient = check_transient(transient, duration)
     if not (0 < epsilon < 1e-3):
         raise ParameterError(f"epsilon must be in (0, 1e-3) m, got {epsilon}")
     n_realizations = check_count("realizations", n_realizations)

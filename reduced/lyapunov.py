@@ -56,6 +56,14 @@ class LyapunovResult:
         return d
 
 
+def check_transient(transient: float | None, duration: float) -> float:
+    """The transient to discard (s): default min(10 s, duration / 10), in [0, duration)."""
+    t = min(10.0, duration / 10) if transient is None else float(transient)
+    if not (0 <= t < duration):
+        raise ParameterError(f"transient must be in [0, duration = {duration}) s, got {transient}")
+    return t
+
+
 def mean_ci95(samples: np.ndarray) -> tuple[float, tuple[float, float]]:
     """Mean and Student-t 95 % confidence interval of i.i.d. samples (NaN CI for n < 2)."""
     samples = np.asarray(samples, dtype=float)
@@ -100,9 +108,7 @@ def lyapunov(
     check_choice("stepper", stepper, STEPPERS)
     duration = _check_duration(duration)
     n_steps = whole_steps("duration", duration, params.dt)
-    transient = min(10.0, duration / 10) if transient is None else float(transient)
-    if not (0 <= transient < duration):
-        raise ParameterError(f"transient must be in [0, duration = {duration}) s, got {transient}")
+    transient = check_transient(transient, duration)
     transient_steps = round(transient / params.dt)
     renorm = params.tau if renorm_interval is None else float(renorm_interval)
     if not (params.dt <= renorm <= duration - transient):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import platform
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -58,76 +59,51 @@ def run_validation(
     bar = tqdm(stages, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     checks, paper_rows = [], []
-    fig: dict[str, Any] = {}
 
-    def stage(name: str) -> None:
+    @contextmanager
+    def stage(name: str):
         bar.set_postfix_str(name)
-        timings[name] = time.perf_counter()
-
-    def done(name: str) -> None:
-        timings[name] = round(time.perf_counter() - timings[name], 2)
+        t = time.perf_counter()
+        yield
+        timings[name] = round(time.perf_counter() - t, 2)
         bar.update(1)
 
-    stage("lambda1 agreement")
-    c, d = agreement.lyapunov_checks(profile, workers)
-    checks += c
-    fig["lyapunov_points"] = d["lyapunov"]
-    done("lambda1 agreement")
-
-    stage("time-series agreement")
-    c, series = agreement.series_checks(profile, workers)
-    checks += c
-    done("time-series agreement")
-
-    stage("amplitude scan")
-    c, scan_rows = agreement.amplitude_scan(profile, workers)
-    checks += c
-    done("amplitude scan")
-
-    stage("critical gains")
-    c, rows, bstar = paper.critical_gains(profile, workers)
-    checks += c
-    paper_rows += rows
-    done("critical gains")
-
-    stage("lambda1 curve")
-    curve = paper.lyapunov_curve(profile, workers)
-    done("lambda1 curve")
-
-    stage("RMS and velocity")
-    rows, rms_data = paper.rms_and_velocity(profile, workers)
-    paper_rows += rows
-    done("RMS and velocity")
-
-    stage("STCC and spectra")
-    rows, peak_data = paper.peaks_and_spectra(profile, workers)
-    paper_rows += rows
-    done("STCC and spectra")
-
-    stage("rod-length study")
-    c, rod_rows, rod_ds = agreement.rod_length_study(profile, out_dir, workers)
-    checks += c
-    done("rod-length study")
-
-    stage("figures")
+    with stage("lambda1 agreement"):
+        c, d = agreement.lyapunov_checks(profile, workers)
+        checks += c
+    with stage("time-series agreement"):
+        c, series = agreement.series_checks(profile, workers)
+        checks += c
+    with stage("amplitude scan"):
+        c, scan_rows = agreement.amplitude_scan(profile, workers)
+        checks += c
+    with stage("critical gains"):
+        c, rows, bstar = paper.critical_gains(profile, workers)
+        checks += c
+        paper_rows += rows
+    with stage("lambda1 curve"):
+        curve = paper.lyapunov_curve(profile, workers)
+    with stage("RMS and velocity"):
+        rows, rms_data = paper.rms_and_velocity(profile, workers)
+        paper_rows += rows
+    with stage("STCC and spectra"):
+        rows, peak_data = paper.peaks_and_spectra(profile, workers)
+        paper_rows += rows
+    with stage("rod-length study"):
+        c, rod_rows, rod_ds = agreement.rod_length_study(profile, out_dir, workers)
+        checks += c
     figure_files = []
-    if figures:
-        figure_files = plots.paper_figures(
-            out_dir,
-            curve=curve,
-            lyapunov_points=fig["lyapunov_points"],
-            bstar=bstar,
-            series=series,
-            rms=rms_data,
-            peaks=peak_data,
-            scan=scan_rows,
-        )
-        from .sweep import plot_metric
+    with stage("figures"):
+        if figures:
+            figure_files = plots.paper_figures(
+                out_dir, curve=curve, lyapunov_points=d["lyapunov"], bstar=bstar,
+                series=series, rms=rms_data, peaks=peak_data, scan=scan_rows,
+            )  # fmt: skip
+            from .sweep import plot_metric
 
-        for metric in ("max_angle", "agreement"):
-            figure_files.append(plot_metric(rod_ds, metric, "rod_length_ratio",
-                                            out_dir / f"fig_rod_length_{metric}.png"))  # fmt: skip
-    done("figures")
+            for metric in ("max_angle", "agreement"):
+                png = out_dir / f"fig_rod_length_{metric}.png"
+                figure_files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
     bar.close()
 
     counts = {s: sum(ch.status == s for ch in checks) for s in (PASS, FAIL, INCONCLUSIVE)}
