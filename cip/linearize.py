@@ -29,7 +29,7 @@ import numpy as np
 
 from reduced.params import BalanceParams
 
-from .model import CIPParams, build
+from .model import CIPParams, bob_rotational_inertia, build
 
 
 @dataclass
@@ -172,7 +172,7 @@ def linearize(model: str, physical: CIPParams | None = None, eps: float = 1e-6) 
 
     # predicted extra terms (first order in m/M and kappa)
     mr = p.mass_ratio
-    kappa = (0.4 * p.bob_mass * p.bob_radius**2 + 1e-12) / (p.tip_mass * L**2)
+    kappa = bob_rotational_inertia(p) / (p.tip_mass * L**2)
     alpha = p.gravity / L
     A_extra = np.zeros((n, n))
     B_extra = np.zeros((n, nc))

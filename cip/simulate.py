@@ -8,7 +8,7 @@ starts at ``amplitude`` (m) with the constant history e(t) = amplitude, t < 0.
 
 Every run records the largest |theta| of each realisation and flags those that
 left the small-angle regime (|theta| > :func:`cip.model.small_angle_limit`,
-about 0.17 rad, where sin(theta) departs from theta by 0.5 %).  A run whose
+about 0.077 rad, where sin(theta) departs from theta by 0.1 %).  A run whose
 state turns non-finite or that raises a MuJoCo warning stops at that chunk and
 returns what it computed, with ``attrs["diverged"]`` saying which realisation,
 when and why.

@@ -172,7 +172,11 @@ def test_linearisation_matches_reduced_up_to_documented_terms():
         lin = linearize(model)
         assert np.abs(lin.A_diff).max() > 0.02  # the extra terms are really there (m/M alpha)
         assert lin.residual < 1e-4
-        small = linearize(model, CIPParams(bob_mass=1e-5, bob_radius=0.002))
+        # a bob of finite radius adds kappa = 2/5 (r/L)^2, predicted to first order
+        sphere = linearize(model, CIPParams(bob_radius=0.02))
+        assert np.abs(sphere.A_extra).max() > np.abs(lin.A_extra).max() + 0.01
+        assert sphere.residual < 1e-4
+        small = linearize(model, CIPParams(bob_mass=1e-5))
         assert small.residual < 1e-6
         assert transition_check(model) < 1e-9
     k = linearize("coupled").rod_stiffness

@@ -176,7 +176,9 @@ def fig_scan(scan, path: Path) -> Path:
         ax.loglog([r["max_abs_angle"] for r in rows], [r["relative_l2"] for r in rows], "o-",
                   color=c, label=model)  # fmt: skip
     ax.axhline(0.01, color="k", lw=0.6, ls="--", label="1 %")
-    ax.axvline(np.sqrt(0.03), color="grey", lw=0.6, ls=":", label="small-angle limit")
+    from cip.model import small_angle_limit
+
+    ax.axvline(small_angle_limit(), color="grey", lw=0.6, ls=":", label="small-angle limit")
     ax.set_xlabel(r"largest $|\theta|$ reached (rad)")
     ax.set_ylabel("relative L2 distance of balancing errors")
     ax.legend(fontsize=8)
