@@ -179,12 +179,9 @@ class CIPRunner:
 
     def fields(self, states: np.ndarray) -> dict[str, np.ndarray]:
         """The shared schema's fields from states (..., nstate) -> (..., C) each."""
-        th = states[..., self.i_th]
-        om = states[..., self.i_om]
         x = states[..., self.i_x]
         v = states[..., self.i_vx]
-        e = self.L * np.sin(th)
-        edot = self.L * np.cos(th) * om
+        e, edot = self.errors(states)
         return {
             "tip_position": x + e,
             "tip_velocity": v + edot,
@@ -192,5 +189,5 @@ class CIPRunner:
             "base_velocity": v,
             "balancing_error": e,
             "balancing_error_velocity": edot,
-            "angle": th,
+            "angle": states[..., self.i_th],
         }

@@ -64,14 +64,20 @@ def check_transient(transient: float | None, duration: float) -> float:
     return t
 
 
+def ci95_half_width(samples: np.ndarray) -> float:
+    """Student-t 95 % half-width t_{0.975, n-1} s / sqrt(n) of i.i.d. samples (NaN for n < 2)."""
+    samples = np.asarray(samples, dtype=float)
+    n = samples.size
+    if n < 2:
+        return float("nan")
+    return float(scipy.stats.t.ppf(0.975, n - 1) * samples.std(ddof=1) / np.sqrt(n))
+
+
 def mean_ci95(samples: np.ndarray) -> tuple[float, tuple[float, float]]:
     """Mean and Student-t 95 % confidence interval of i.i.d. samples (NaN CI for n < 2)."""
     samples = np.asarray(samples, dtype=float)
     m = float(samples.mean())
-    n = samples.size
-    if n < 2:
-        return m, (float("nan"), float("nan"))
-    half = scipy.stats.t.ppf(0.975, n - 1) * samples.std(ddof=1) / np.sqrt(n)
+    half = ci95_half_width(samples)
     return m, (m - half, m + half)
 
 

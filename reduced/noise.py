@@ -26,8 +26,28 @@ import numpy as np
 from .params import check_count
 
 
+class _NoiseSource:
+    """What both noise sources share: whole chunks built from per-realisation ``fill``."""
+
+    n_realizations: int
+    n_controllers: int
+    position: int
+
+    def fill(self, realization: int, out: np.ndarray) -> None:
+        raise NotImplementedError
+
+    def next_chunk(self, n_steps: int, out: np.ndarray | None = None) -> np.ndarray:
+        """The next ``n_steps`` draws of every realisation, shape (R, n_steps, C)."""
+        if out is None:
+            out = np.empty((self.n_realizations, n_steps, self.n_controllers))
+        for r in range(self.n_realizations):
+            self.fill(r, out[r])
+        self.position += n_steps
+        return out
+
+
 @dataclass
-class GainNoise:
+class GainNoise(_NoiseSource):
     """Standard-normal draws xi[r, k, i] for realisation r, step k, controller i.
 
     Parameters
@@ -85,15 +105,6 @@ class GainNoise:
         """
         self._rngs[realization].standard_normal(out=out)
 
-    def next_chunk(self, n_steps: int, out: np.ndarray | None = None) -> np.ndarray:
-        """The next ``n_steps`` draws of every realisation, shape (R, n_steps, C)."""
-        if out is None:
-            out = np.empty((self.n_realizations, n_steps, self.n_controllers))
-        for r in range(self.n_realizations):
-            self.fill(r, out[r])
-        self.position += n_steps
-        return out
-
     def draws(self, n_steps: int) -> np.ndarray:
         """All draws for steps [0, n_steps) from a fresh copy (does not advance ``self``)."""
         return GainNoise(
@@ -106,7 +117,7 @@ def random_gain(xi: np.ndarray, nu: float, dt: float) -> np.ndarray:
     return 1.0 + (nu / np.sqrt(dt)) * xi
 
 
-class ArrayNoise:
+class ArrayNoise(_NoiseSource):
     """Given draws xi (R, steps, C) served through the :class:`GainNoise` interface.
 
     For handing externally generated or hand-made noise (tests, identical
@@ -137,11 +148,3 @@ class ArrayNoise:
             raise ValueError(f"ArrayNoise holds {self.n_steps} steps; asked for step {p + n}")
         out[...] = self.xi[realization, p : p + n]
         self._pos[realization] = p + n
-
-    def next_chunk(self, n_steps: int, out: np.ndarray | None = None) -> np.ndarray:
-        if out is None:
-            out = np.empty((self.n_realizations, n_steps, self.n_controllers))
-        for r in range(self.n_realizations):
-            self.fill(r, out[r])
-        self.position += n_steps
-        return out

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,25 +45,10 @@ def _params(a: argparse.Namespace, beta: float | None = None) -> BalanceParams:
     )  # fmt: skip
 
 
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o).__name__)
-
-
 def _dump(obj) -> str:
-    def clean(v):
-        if isinstance(v, float) and not math.isfinite(v):
-            return None
-        if isinstance(v, dict):
-            return {k: clean(x) for k, x in v.items()}
-        if isinstance(v, list | tuple):
-            return [clean(x) for x in v]
-        return v
+    from validation.report import jsonable
 
-    return json.dumps(clean(json.loads(json.dumps(obj, default=_json_default))), indent=None)
+    return json.dumps(jsonable(obj))
 
 
 # ---------------------------------------------------------------- lyapunov

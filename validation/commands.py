@@ -120,29 +120,35 @@ def _profile(name: str):
     return PROFILES[name]
 
 
-def cmd_run(a: argparse.Namespace) -> int:
+def _read_results(path: str, option: str) -> dict:
+    """A results.json written by cip-validate, or a one-line usage error naming ``option``."""
     import json
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise ParameterError(f"{option}: no such file {path!r}")
+    try:
+        results = json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise ParameterError(f"{option}: {path!r} is not JSON ({exc.msg})") from None
+    if not isinstance(results, dict) or results.get("cipval_results") != 1:
+        raise ParameterError(f"{option}: {path!r} is not a cip-validate results file")
+    return results
+
+
+def cmd_run(a: argparse.Namespace) -> int:
     from pathlib import Path
 
     from validation.harness import run_validation
     from validation.report import compare_with_baseline, summary_table, write_reports
 
-    baseline = None
-    if a.baseline:
-        path = Path(a.baseline)
-        if not path.is_file():
-            raise ParameterError(f"--baseline: no such file {a.baseline!r}")
-        try:
-            baseline = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise ParameterError(f"--baseline: {a.baseline!r} is not JSON ({exc.msg})") from None
-        if baseline.get("cipval_results") != 1:
-            raise ParameterError(f"--baseline: {a.baseline!r} is not a cip-validate results file")
-        if baseline.get("profile") != a.profile:
-            raise ParameterError(
-                f"--baseline: {a.baseline!r} was made with profile {baseline.get('profile')!r}, "
-                f"this run uses {a.profile!r}"
-            )
+    baseline = _read_results(a.baseline, "--baseline") if a.baseline else None
+    if baseline is not None and baseline.get("profile") != a.profile:
+        raise ParameterError(
+            f"--baseline: {a.baseline!r} was made with profile {baseline.get('profile')!r}, "
+            f"this run uses {a.profile!r}"
+        )
     if a.workers is not None and a.workers < 1:
         raise ParameterError(f"--workers must be an integer >= 1, got {a.workers}")
     out = Path(a.out)
@@ -166,18 +172,13 @@ def cmd_run(a: argparse.Namespace) -> int:
 
 
 def cmd_baseline(a: argparse.Namespace) -> int:
-    import json
     import shutil
     from pathlib import Path
 
     out = Path(a.out)
     if a.from_results:
-        src = Path(a.from_results)
-        if not src.is_file():
-            raise ParameterError(f"--from: no such file {a.from_results!r}")
-        if json.loads(src.read_text()).get("cipval_results") != 1:
-            raise ParameterError(f"--from: {a.from_results!r} is not a cip-validate results file")
-        shutil.copyfile(src, out)
+        _read_results(a.from_results, "--from")
+        shutil.copyfile(a.from_results, out)
     else:
         import tempfile
 

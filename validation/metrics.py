@@ -199,12 +199,10 @@ def stcc(
     out = np.empty((*x.shape[:-1], starts.size, lmax + 1))
     for lag in range(lmax + 1):
         ys = y[..., lag:]
-        xs = x[..., : n - lag]
-        # windows of x(s) y(s + lag) and of y(s + lag) for s in [t, t + Dt)
-        c = np.concatenate([np.zeros((*x.shape[:-1], 1)), np.cumsum(xs * ys, axis=-1)], axis=-1)
-        cy = np.concatenate([np.zeros((*x.shape[:-1], 1)), np.cumsum(ys, axis=-1)], axis=-1)
-        sxy = (c[..., starts + w] - c[..., starts]) / w
-        sy_l = (cy[..., starts + w] - cy[..., starts]) / w
+        # windows of x(s) y(s + lag) and of y(s + lag) for s in [t, t + Dt); every window
+        # ends at starts + w <= n - lmax <= n - lag, inside the lagged series
+        sxy = wsum(x[..., : n - lag] * ys) / w
+        sy_l = wsum(ys) / w
         with np.errstate(divide="ignore", invalid="ignore"):
             out[..., lag] = (sxy - mx * sy_l) / (sx * sy)
     return starts * dt, np.arange(lmax + 1) * dt, out

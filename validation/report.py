@@ -25,22 +25,23 @@ from .stats import Check
 Z_REGRESSION = 4.0
 
 
-def _clean(v: Any) -> Any:
+def jsonable(v: Any) -> Any:
+    """Nested dicts / lists / numpy values as plain JSON values; NaN and inf become None."""
     if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
+        return {str(k): jsonable(x) for k, x in v.items()}
     if isinstance(v, list | tuple):
-        return [_clean(x) for x in v]
+        return [jsonable(x) for x in v]
     if isinstance(v, np.ndarray):
-        return _clean(v.tolist())
+        return jsonable(v.tolist())
     if isinstance(v, np.generic):
-        return _clean(v.item())
+        return jsonable(v.item())
     if isinstance(v, float) and not math.isfinite(v):
         return None
     return v
 
 
 def write_json(results: dict, path: Path) -> Path:
-    path.write_text(json.dumps(_clean(results), indent=1))
+    path.write_text(json.dumps(jsonable(results), indent=1))
     return path
 
 
@@ -127,7 +128,7 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
     if results["figures"]:
         lines += ["", "## Figures", ""]
         lines += [f"![{f}]({f})" for f in results["figures"]]
-    lines += ["", "## Settings", "", "```json", json.dumps(_clean(results["settings"]), indent=1),
+    lines += ["", "## Settings", "", "```json", json.dumps(jsonable(results["settings"]), indent=1),
               "```", ""]  # fmt: skip
     return "\n".join(lines)
 
@@ -217,7 +218,7 @@ def regression_numbers(results: dict) -> dict[str, tuple[float, float]]:
 
 def compare_with_baseline(results: dict, baseline: dict) -> list[Check]:
     """One check per number in both results (rule in the module docstring)."""
-    new = regression_numbers(_clean(results))
+    new = regression_numbers(jsonable(results))
     old = regression_numbers(baseline)
     checks = []
     for name in sorted(set(new) | set(old)):

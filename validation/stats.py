@@ -24,7 +24,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.stats
+
+from reduced.lyapunov import ci95_half_width
 
 PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
 
@@ -44,11 +45,9 @@ class Check:
 
 
 def t_half_width(x: np.ndarray) -> float:
+    """Student-t 95 % half-width of the finite values of ``x`` (NaN for fewer than 2)."""
     x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 2:
-        return float("nan")
-    return float(scipy.stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size))
+    return ci95_half_width(x[np.isfinite(x)])
 
 
 def ci_overlap(m1: float, ci1, m2: float, ci2) -> tuple[str, dict]:

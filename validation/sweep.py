@@ -83,7 +83,6 @@ LABELS = {
     "dt": "time step (s)",
     "amplitude": "initial balancing error (m)",
 }
-PER_REALIZATION = ("lambda1", "rms", "max_angle", "agreement", "tau_hat")
 
 
 @dataclass
@@ -227,6 +226,7 @@ def evaluate_point(study_dict: dict, point: dict[str, Any], threads: int = 1) ->
     from reduced import lyapunov, simulate
 
     from . import metrics as mt
+    from .agreement import TRAJECTORY_WINDOW
 
     study = Study(**study_dict)
     params, phys, amplitude = point_params(study, point)
@@ -254,7 +254,8 @@ def evaluate_point(study_dict: dict, point: dict[str, Any], threads: int = 1) ->
         if "max_angle" in study.metrics:
             out["max_angle"] = list(tr.attrs["max_abs_angle"])
         if "agreement" in study.metrics:
-            ref = simulate(study.model, params, min(dur, 10.0), n, seed, amplitude=amplitude,
+            ref = simulate(study.model, params, min(dur, TRAJECTORY_WINDOW), n, seed,
+                           amplitude=amplitude,
                            decimate=study.decimate, fields=("balancing_error",),
                            threads=threads)  # fmt: skip
             k = ref.time.size
