@@ -9,9 +9,10 @@ starts at ``amplitude`` (m) with the constant history e(t) = amplitude, t < 0.
 Every run records the largest |theta| of each realisation and flags those that
 left the small-angle regime (|theta| > :func:`cip.model.small_angle_limit`,
 about 0.077 rad, where sin(theta) departs from theta by 0.1 %).  A run whose
-state turns non-finite or that raises a MuJoCo warning stops at that chunk and
-returns what it computed, with ``attrs["diverged"]`` saying which realisation,
-when and why.
+state turns non-finite or that raises a MuJoCo warning stops the run at the
+end of that chunk: every realisation returns its samples up to there (the
+same, whatever the thread timing), and ``attrs["diverged"]`` says which
+realisation, when and why.
 """
 
 from __future__ import annotations
@@ -81,10 +82,11 @@ def simulate_full(
     recorded = np.zeros(nreal, dtype=int)
     runners: dict[int, CIPRunner] = {}
     diverged: list[dict] = []
+    stop = [n_steps]  # end of the earliest diverging chunk: every block runs up to it
 
     def work(block: slice, xi: np.ndarray, step: int) -> bool:
-        if diverged:
-            return False  # another block diverged: stop everywhere
+        if step >= stop[0]:
+            return False  # a realisation diverged before this chunk: stop here
         runner = runners.get(block.start)
         if runner is None:
             runner = runners[block.start] = CIPRunner(
@@ -117,12 +119,14 @@ def simulate_full(
             "time_window": [step * params.dt, (step + n) * params.dt],
             "reason": "non-finite state" if not finite.all() else f"{nwarn} MuJoCo warning(s)",
         })  # fmt: skip
+        stop[0] = min(stop[0], step + n)
         return False
 
     run_blocks(noise, n_steps, work, threads=threads, chunk_steps=params.delay_steps,
                progress=progress and "mujoco")  # fmt: skip
     first = min(diverged, key=lambda d: d["time_window"][0]) if diverged else None
-    n_rec = int(recorded.min()) if first else n_samples
+    # every realisation has its samples up to the stop, whatever the thread timing
+    n_rec = -(-stop[0] // decimate) if first else n_samples
     if first:
         out = {f: a[:, :n_rec] for f, a in out.items()}
         warnings.warn(

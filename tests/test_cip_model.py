@@ -207,6 +207,12 @@ def test_divergence_stops_and_keeps_what_was_computed():
     assert tr.attrs["diverged"] is not None
     assert 0 < tr.time.size < 5000
     assert np.isfinite(tr["balancing_error"][:, :10]).all()
+    # every realisation keeps its samples up to the stop, whatever the thread timing
+    for threads in (1, 2):
+        with pytest.warns(DivergenceWarning):
+            again = simulate_full("single", p, 5.0, 2, amplitude=0.01, threads=threads)
+        assert again.time.size == tr.time.size
+        np.testing.assert_array_equal(again["balancing_error"], tr["balancing_error"])
 
 
 def test_bad_input():
