@@ -11,8 +11,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from cipcore.driver import run_blocks
 from reduced import BalanceParams, GainNoise, lyapunov
-from reduced._driver import run_blocks
 
 
 def main() -> None:

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from reduced.params import BalanceParams
+from cipcore.models import get_model
+from cipcore.params import BalanceParams
 
 from .model import CIPParams, bob_rotational_inertia, build
 
@@ -105,7 +106,7 @@ def qacc_jacobians(m: mujoco.MjModel, eps: float = 1e-6) -> tuple[np.ndarray, np
 def reduced_matrices(model: str, params: BalanceParams) -> tuple[np.ndarray, np.ndarray]:
     """A, B of the reduced model in the coordinates of :func:`linearize` (no delta)."""
     a_, g = params.alpha, params.gamma
-    if model == "single":
+    if get_model(model).n_controllers == 1:
         # (x_T, x_M, v_T, v_M)
         A = np.zeros((4, 4))
         A[0, 2] = A[1, 3] = 1.0
@@ -131,7 +132,7 @@ def linearize(model: str, physical: CIPParams | None = None, eps: float = 1e-6) 
     a_full, b_full = qacc_jacobians(m, eps)
     L, M = p.pendulum_length, p.cart_mass
     names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
-    nc = 1 if model == "single" else 2
+    nc = get_model(model).n_controllers
     ix = [m.jnt_dofadr[names.index(f"x_M{i + 1}")] for i in range(nc)]
     it = [m.jnt_dofadr[names.index(f"theta_{i + 1}")] for i in range(nc)]
     iu = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i + 1}") for i in range(nc)]

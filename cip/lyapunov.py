@@ -18,14 +18,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from reduced._driver import run_blocks
-from reduced.lyapunov import LyapunovResult, check_transient, mean_ci95
-from reduced.noise import GainNoise
-from reduced.params import BalanceParams, ParameterError, check_count, whole_steps
-from reduced.simulate import _check_duration
+from cipcore.driver import run_blocks
+from cipcore.models import get_model
+from cipcore.noise import GainNoise
+from cipcore.params import BalanceParams, ParameterError, check_count, whole_steps
+from cipcore.results import LyapunovResult, check_transient
+from cipcore.schema import check_duration
+from cipcore.stats import mean_ci95
 
 from .model import CIPParams
-from .runner import CIPRunner
+from .runner import CIPRunner, RolloutBackend
 
 
 def _deviation_norm(r: CIPRunner, state: np.ndarray) -> np.ndarray:
@@ -62,6 +64,7 @@ def lyapunov_full(
     transient: float | None = None,
     threads: int | None = None,
     progress: bool = False,
+    backend: type[RolloutBackend] | None = None,
 ) -> LyapunovResult:
     """Largest Lyapunov exponent (1/s) of the MuJoCo CIP about upright.
 
@@ -70,8 +73,8 @@ def lyapunov_full(
     ``epsilon`` (m) is the deviation size kept by renormalisation: small
     enough for the linear regime (theta ~ epsilon / L).
     """
-    nc = 1 if model == "single" else 2
-    duration = _check_duration(duration)
+    nc = get_model(model).n_controllers
+    duration = check_duration(duration)
     n_steps = whole_steps("duration", duration, params.dt)
     transient = check_transient(transient, duration)
     if not (0 < epsilon < 1e-3):
@@ -89,7 +92,9 @@ def lyapunov_full(
     def work(block: slice, xi: np.ndarray, step: int) -> None:
         r = runners.get(block.start)
         if r is None:
-            r = runners[block.start] = _start(model, params, physical, block, seed, epsilon)
+            r = runners[block.start] = _start(
+                model, params, physical, block, seed, epsilon, backend
+            )
         n = xi.shape[1]
         r.advance(xi)
         norm = _deviation_norm(r, r.state)
@@ -110,7 +115,13 @@ def lyapunov_full(
 
 
 def _start(
-    model: str, params: BalanceParams, physical: CIPParams, block: slice, seed: int, epsilon: float
+    model: str,
+    params: BalanceParams,
+    physical: CIPParams,
+    block: slice,
+    seed: int,
+    epsilon: float,
+    backend: type[RolloutBackend] | None = None,
 ) -> CIPRunner:
     """A runner for realisations ``block`` at a random deviation of norm epsilon.
 
@@ -118,7 +129,9 @@ def _start(
     ``SeedSequence(seed, spawn_key=(k, 1))``; in the coupled model both angles
     start equal (on the rod constraint to first order).
     """
-    r = CIPRunner(model, params, physical, block.stop - block.start, 0.0, threads=1)
+    r = CIPRunner(
+        model, params, physical, block.stop - block.start, 0.0, threads=1, backend=backend
+    )
     for j, k in enumerate(range(block.start, block.stop)):
         rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k, 1)))
         r.state[j, r.i_th] = rng.standard_normal(r.nc) / physical.pendulum_length

@@ -39,7 +39,8 @@ from pathlib import Path
 
 import mujoco
 
-from reduced.params import BalanceParams, ParameterError, check_choice, check_positive
+from cipcore.models import MODEL_NAMES, get_model
+from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
 
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 MODEL_DIR = Path(__file__).resolve().parent.parent / "models"
@@ -183,9 +184,8 @@ def mjcf(model: str, p: CIPParams | None = None) -> str:
     ``tip_<i>`` and ``base_<i>``, motors ``u_<i>``, the tendon and equality
     ``rod``; sensors are named after the shared schema's fields.
     """
-    check_choice("model", model, ("single", "coupled"))
+    nc = get_model(model).n_controllers
     p = p or CIPParams()
-    nc = 1 if model == "single" else 2
     L, m, M = p.pendulum_length, p.tip_mass, p.cart_mass
     bob_inertia = bob_rotational_inertia(p)
     xs = [0.0] if nc == 1 else [0.5 * p.rod_length, -0.5 * p.rod_length]
@@ -300,7 +300,7 @@ def write_models(directory: Path = MODEL_DIR) -> list[Path]:
     """Write ``cip_single.xml`` and ``cip_coupled.xml`` at the default parameters."""
     directory.mkdir(parents=True, exist_ok=True)
     out = []
-    for model in ("single", "coupled"):
+    for model in MODEL_NAMES:
         path = directory / f"cip_{model}.xml"
         path.write_text(mjcf(model))
         out.append(path)

@@ -18,12 +18,14 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
+from typing import Protocol
 
 import mujoco
 import numpy as np
 from mujoco import rollout
 
-from reduced.params import BalanceParams, ParameterError
+from cipcore.models import get_model
+from cipcore.params import BalanceParams, ParameterError
 
 from .model import CIPParams, build
 
@@ -49,6 +51,45 @@ class Controller:
             raise ParameterError(f"controller must be delayed-random-gain or pd, got {self.kind!r}")
 
 
+class RolloutBackend(Protocol):
+    """Steps a batch of rigid-body states under given controls: the engine-specific part.
+
+    ``backend(state, ctrl, out)`` advances every realisation from ``state``
+    (R, nstate), an ``mjSTATE_FULLPHYSICS`` vector (time, qpos, qvel, ...), over
+    n = ctrl.shape[1] steps, the control ``ctrl[:, k]`` (R, n, nu) held over step k,
+    and writes the states after each step into ``out`` (R, n, nstate).
+    """
+
+    def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None: ...
+
+    def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None: ...
+
+    def warnings(self) -> int: ...
+
+
+class MujocoRollout:
+    """MuJoCo on the CPU: one ``mujoco.rollout`` call per chunk, across threads."""
+
+    def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
+        self.models = [model] * n_realizations
+        self.datas = [mujoco.MjData(model) for _ in range(threads)]
+        self._sens: np.ndarray | None = None
+        self.nsensordata = model.nsensordata
+
+    def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+        n = ctrl.shape[1]
+        if self._sens is None or self._sens.shape[1] != n:
+            self._sens = np.empty((len(self.models), n, self.nsensordata))
+        rollout.rollout(
+            self.models, self.datas, state, ctrl, nstep=n,
+            skip_checks=True, state=out, sensordata=self._sens,
+        )  # fmt: skip
+
+    def warnings(self) -> int:
+        """Number of MuJoCo warnings (bad qacc, instability) raised in the worker data."""
+        return sum(int(d.warning[w].number) for d in self.datas for w in range(len(d.warning)))
+
+
 class CIPRunner:
     """State of R realisations of the single or coupled CIP and their delay buffers.
 
@@ -69,12 +110,13 @@ class CIPRunner:
         *,
         controller: Controller | None = None,
         threads: int | None = None,
+        backend: type[RolloutBackend] | None = None,
     ) -> None:
         self.model_name = model
         self.params = params
         self.physical = physical
         self.controller = controller or Controller()
-        self.nc = 1 if model == "single" else 2
+        self.nc = get_model(model).n_controllers
         if abs(physical.timestep - params.dt) > 1e-15:
             raise ParameterError(
                 f"physical timestep {physical.timestep} differs from dt {params.dt}"
@@ -107,10 +149,8 @@ class CIPRunner:
             ]
         )
         self.threads = max(1, min(threads or os.cpu_count() or 1, n_realizations))
-        self.datas = [mujoco.MjData(self.m) for _ in range(self.threads)]
         self.n_realizations = n_realizations
-        self.models = [self.m] * n_realizations
-        self._sens: np.ndarray | None = None
+        self.backend = (backend or MujocoRollout)(self.m, n_realizations, self.threads)
         data = mujoco.MjData(self.m)
         theta0 = np.arcsin(amplitude / L)
         for j in it:
@@ -153,10 +193,7 @@ class CIPRunner:
             u = (M * p.beta) * (1.0 + p.noise_scale * xi) * self.e_hist[:, :n]
         ctrl[:, :, self.i_u] = u
         out = np.empty((self.n_realizations, n, self.nstate))
-        rollout.rollout(
-            self.models, self.datas, self.state, np.ascontiguousarray(ctrl), nstep=n,
-            skip_checks=True, state=out, sensordata=self._sensordata(n),
-        )  # fmt: skip
+        self.backend(self.state, np.ascontiguousarray(ctrl), out)
         e, edot = self.errors(out)
         # e at steps step .. step+n-1 are: current state, then out[:, :n-1]
         e_cur, edot_cur = self.errors(self.state)
@@ -168,14 +205,9 @@ class CIPRunner:
         self.step += n
         return out
 
-    def _sensordata(self, n: int) -> np.ndarray:
-        if self._sens is None or self._sens.shape[1] != n:
-            self._sens = np.empty((self.n_realizations, n, self.m.nsensordata))
-        return self._sens
-
     def warnings(self) -> int:
-        """Number of MuJoCo warnings (bad qacc, instability) raised in the worker data."""
-        return sum(int(d.warning[w].number) for d in self.datas for w in range(len(d.warning)))
+        """Number of engine warnings (bad qacc, instability) raised so far."""
+        return self.backend.warnings()
 
     def fields(self, states: np.ndarray) -> dict[str, np.ndarray]:
         """The shared schema's fields from states (..., nstate) -> (..., C) each."""

@@ -21,20 +21,21 @@ import warnings
 
 import numpy as np
 
-from reduced._driver import run_blocks
-from reduced.noise import ArrayNoise, GainNoise
-from reduced.params import BalanceParams, check_choice, whole_steps
-from reduced.schema import UNITS, Trajectory
-from reduced.simulate import (
+from cipcore.driver import run_blocks
+from cipcore.models import get_model
+from cipcore.noise import ArrayNoise, GainNoise, make_noise
+from cipcore.params import BalanceParams, whole_steps
+from cipcore.schema import (
     DEFAULT_MAX_BYTES,
-    _check_duration,
-    _noise,
+    UNITS,
+    Trajectory,
     check_amplitude,
+    check_duration,
     plan_recording,
 )
 
 from .model import CIPParams, small_angle_limit
-from .runner import CIPRunner, Controller
+from .runner import CIPRunner, Controller, RolloutBackend
 
 FULL_FIELDS = tuple(UNITS)
 
@@ -60,19 +61,22 @@ def simulate_full(
     threads: int | None = None,
     max_bytes: int = DEFAULT_MAX_BYTES,
     progress: bool = False,
+    backend: type[RolloutBackend] | None = None,
+    engine_name: str = "mujoco",
 ) -> Trajectory:
     """Simulate the full CIP in MuJoCo (see the module docstring).
 
     Parameters as :func:`reduced.simulate.simulate`; ``physical`` defaults to
     :meth:`CIPParams.from_reduced` of ``params`` (L = g/alpha, m/M = 1e-3).
+    ``backend`` steps the rigid body (default :class:`cip.runner.MujocoRollout`,
+    MuJoCo on the CPU); ``engine_name`` is recorded in ``attrs["engine"]``.
     """
-    check_choice("model", model, ("single", "coupled"))
-    nc = 1 if model == "single" else 2
-    duration = _check_duration(duration)
+    nc = get_model(model).n_controllers
+    duration = check_duration(duration)
     n_steps = whole_steps("duration", duration, params.dt)
     amplitude = check_amplitude(amplitude)
     physical = physical or CIPParams.from_reduced(params)
-    noise = _noise(noise, seed, n_realizations, nc)
+    noise = make_noise(noise, seed, n_realizations, nc)
     nreal = noise.n_realizations
     n_samples = plan_recording(
         n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes, allowed=FULL_FIELDS
@@ -91,7 +95,7 @@ def simulate_full(
         if runner is None:
             runner = runners[block.start] = CIPRunner(
                 model, params, physical, block.stop - block.start, amplitude,
-                controller=controller, threads=1,
+                controller=controller, threads=1, backend=backend,
             )  # fmt: skip
         n = xi.shape[1]
         before = runner.state
@@ -138,7 +142,7 @@ def simulate_full(
         )
     limit = small_angle_limit()
     attrs = {
-        "engine": "mujoco",
+        "engine": engine_name,
         "model": model,
         "stepper": physical.integrator,
         "seed": noise.seed,

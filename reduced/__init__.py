@@ -5,10 +5,13 @@ rod between the stick tips (eq. sss08:TM), under time-delayed feedback with a
 white-noise random gain R_i(t) = 1 + nu*xi_i(t).
 """
 
-from .lyapunov import CriticalGain, LyapunovResult, critical_gain, lyapunov, mean_ci95
-from .noise import ArrayNoise, GainNoise, random_gain
-from .params import PAPER, BalanceParams, ParameterError
-from .schema import COMMON_FIELDS, UNITS, Trajectory
+from cipcore.noise import ArrayNoise, GainNoise, random_gain
+from cipcore.params import PAPER, BalanceParams, ParameterError
+from cipcore.results import LyapunovResult
+from cipcore.schema import COMMON_FIELDS, UNITS, Trajectory
+from cipcore.stats import mean_ci95
+
+from .lyapunov import CriticalGain, critical_gain, lyapunov
 from .simulate import n_controllers, simulate
 from .stability import (
     characteristic_function,

@@ -17,68 +17,19 @@ result.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
-import scipy.stats
+
+from cipcore.driver import run_blocks
+from cipcore.noise import GainNoise, make_noise
+from cipcore.params import STEPPERS, BalanceParams, ParameterError, check_choice, whole_steps
+from cipcore.results import LyapunovResult, check_transient
+from cipcore.schema import check_duration
+from cipcore.stats import mean_ci95
 
 from . import _kernels
-from ._driver import run_blocks
-from .noise import GainNoise
-from .params import STEPPERS, BalanceParams, ParameterError, check_choice, whole_steps
-from .simulate import _check_duration, _noise, n_controllers
-
-
-@dataclass
-class LyapunovResult:
-    """lambda1 (1/s): mean over realisations and its 95 % confidence interval."""
-
-    lambda1: float
-    ci95: tuple[float, float]
-    per_realization: np.ndarray
-    duration: float
-    transient: float
-    model: str
-    params: dict = field(default_factory=dict)
-    seed: int = 0
-
-    @property
-    def sem(self) -> float:
-        n = len(self.per_realization)
-        return float(np.std(self.per_realization, ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        d["per_realization"] = self.per_realization.tolist()
-        d["ci95"] = [None if not np.isfinite(v) else float(v) for v in self.ci95]
-        d["sem"] = None if not np.isfinite(self.sem) else self.sem
-        d["n_realizations"] = len(self.per_realization)
-        return d
-
-
-def check_transient(transient: float | None, duration: float) -> float:
-    """The transient to discard (s): default min(10 s, duration / 10), in [0, duration)."""
-    t = min(10.0, duration / 10) if transient is None else float(transient)
-    if not (0 <= t < duration):
-        raise ParameterError(f"transient must be in [0, duration = {duration}) s, got {transient}")
-    return t
-
-
-def ci95_half_width(samples: np.ndarray) -> float:
-    """Student-t 95 % half-width t_{0.975, n-1} s / sqrt(n) of i.i.d. samples (NaN for n < 2)."""
-    samples = np.asarray(samples, dtype=float)
-    n = samples.size
-    if n < 2:
-        return float("nan")
-    return float(scipy.stats.t.ppf(0.975, n - 1) * samples.std(ddof=1) / np.sqrt(n))
-
-
-def mean_ci95(samples: np.ndarray) -> tuple[float, tuple[float, float]]:
-    """Mean and Student-t 95 % confidence interval of i.i.d. samples (NaN CI for n < 2)."""
-    samples = np.asarray(samples, dtype=float)
-    m = float(samples.mean())
-    half = ci95_half_width(samples)
-    return m, (m - half, m + half)
+from .simulate import n_controllers
 
 
 def lyapunov(
@@ -112,7 +63,7 @@ def lyapunov(
     """
     nc = n_controllers(model)
     check_choice("stepper", stepper, STEPPERS)
-    duration = _check_duration(duration)
+    duration = check_duration(duration)
     n_steps = whole_steps("duration", duration, params.dt)
     transient = check_transient(transient, duration)
     transient_steps = round(transient / params.dt)
@@ -122,7 +73,7 @@ def lyapunov(
             f"renorm_interval must be in [dt, duration - transient] s, got {renorm_interval}"
         )
     renorm_steps = whole_steps("renorm_interval", renorm, params.dt)
-    noise = _noise(noise, seed, n_realizations, nc)
+    noise = make_noise(noise, seed, n_realizations, nc)
     nreal = noise.n_realizations
     d = params.delay_steps
 

@@ -13,60 +13,30 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import _kernels
-from ._driver import run_blocks
-from .noise import ArrayNoise, GainNoise
-from .params import (
-    MODELS,
+from cipcore.driver import run_blocks
+from cipcore.models import get_model
+from cipcore.noise import GainNoise, make_noise
+from cipcore.params import (
     STEPPERS,
     BalanceParams,
-    ParameterError,
     check_choice,
-    check_count,
     whole_steps,
 )
-from .schema import COMMON_FIELDS, Trajectory
+from cipcore.schema import (
+    COMMON_FIELDS,
+    DEFAULT_MAX_BYTES,
+    Trajectory,
+    check_amplitude,
+    check_duration,
+    plan_recording,
+)
 
-#: Memory cap for the recorded arrays; raise it explicitly with ``max_bytes``.
-DEFAULT_MAX_BYTES = 2 * 1024**3
+from . import _kernels
 
 
 def n_controllers(model: str) -> int:
     """1 for the single model, 2 for the coupled one."""
-    return {"single": 1, "coupled": 2}[check_choice("model", model, MODELS)]
-
-
-def check_amplitude(amplitude: float) -> float:
-    a = float(amplitude)
-    if not np.isfinite(a):
-        raise ParameterError(f"amplitude must be a finite number (m), got {amplitude!r}")
-    return a
-
-
-def plan_recording(
-    n_steps: int,
-    n_realizations: int,
-    nc: int,
-    decimate: int,
-    fields: tuple[str, ...],
-    dtype: np.dtype,
-    max_bytes: int,
-    allowed: tuple[str, ...] = COMMON_FIELDS,
-) -> int:
-    """Check the recording request and return the number of samples."""
-    decimate = check_count("decimate", decimate)
-    for f in fields:
-        if f not in allowed:
-            raise ParameterError(f"fields: unknown field {f!r}; allowed: {', '.join(allowed)}")
-    n_samples = -(-n_steps // decimate)
-    need = n_samples * n_realizations * nc * len(fields) * np.dtype(dtype).itemsize
-    if need > max_bytes:
-        raise ParameterError(
-            f"recording {len(fields)} field(s) x {n_realizations} realisations x {n_samples} "
-            f"samples needs {need / 2**30:.2f} GiB > max_bytes {max_bytes / 2**30:.2f} GiB; "
-            "raise decimate, record fewer fields, use dtype=float32 or raise max_bytes"
-        )
-    return n_samples
+    return get_model(model).n_controllers
 
 
 def simulate(
@@ -111,10 +81,10 @@ def simulate(
     """
     nc = n_controllers(model)
     check_choice("stepper", stepper, STEPPERS)
-    duration = _check_duration(duration)
+    duration = check_duration(duration)
     n_steps = whole_steps("duration", duration, params.dt)
     amplitude = check_amplitude(amplitude)
-    noise = _noise(noise, seed, n_realizations, nc)
+    noise = make_noise(noise, seed, n_realizations, nc)
     nreal = noise.n_realizations
     n_samples = plan_recording(n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes)
 
@@ -164,29 +134,3 @@ def _store(out: dict[str, np.ndarray], rec: np.ndarray, block: slice, j0: int, j
             arr[block, j0:j1] = rec[..., 0] - rec[..., 2]
         elif name == "balancing_error_velocity":
             arr[block, j0:j1] = rec[..., 1] - rec[..., 3]
-
-
-def _check_duration(duration: float) -> float:
-    try:
-        d = float(duration)
-    except (TypeError, ValueError):
-        raise ParameterError(
-            f"duration must be a number of seconds > 0, got {duration!r}"
-        ) from None
-    if not np.isfinite(d) or d <= 0:
-        raise ParameterError(f"duration must be finite and > 0 s, got {duration!r}")
-    return d
-
-
-def _noise(
-    noise: GainNoise | ArrayNoise | None, seed: int, n_realizations: int, nc: int
-) -> GainNoise:
-    if noise is None:
-        return GainNoise(seed, check_count("realizations", n_realizations), nc)
-    if noise.n_controllers != nc:
-        raise ParameterError(
-            f"noise has {noise.n_controllers} controller stream(s), the model needs {nc}"
-        )
-    if noise.position != 0:
-        raise ParameterError("noise must be at step 0 (call noise.reset())")
-    return noise

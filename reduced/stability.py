@@ -33,7 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from .params import MODELS, BalanceParams, check_choice
+from cipcore.models import get_model
+from cipcore.params import BalanceParams
 
 
 def delay_system(model: str, params: BalanceParams) -> tuple[np.ndarray, np.ndarray]:
@@ -41,7 +42,7 @@ def delay_system(model: str, params: BalanceParams) -> tuple[np.ndarray, np.ndar
 
     y = (e_1, e_1', ..., e_C, e_C'); units 1/s (velocity rows: 1/s^2 entries).
     """
-    nc = {"single": 1, "coupled": 2}[check_choice("model", model, MODELS)]
+    nc = get_model(model).n_controllers
     a, b, g = params.alpha, params.beta, params.gamma
     n = 2 * nc
     a0 = np.zeros((n, n))
@@ -64,7 +65,7 @@ def characteristic_function(model: str, params: BalanceParams, s: complex | np.n
     s = np.asarray(s, dtype=complex)
     g, a, b, tau = params.gamma, params.alpha, params.beta, params.tau
     p_sum = s**2 + g * s - a + b * np.exp(-s * tau)
-    if check_choice("model", model, MODELS) == "single":
+    if get_model(model).n_controllers == 1:
         return p_sum
     return p_sum * (s**2 + g * s + b * np.exp(-s * tau))
 

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cipcore.schema import plan_recording
 from reduced import ArrayNoise, BalanceParams, GainNoise, ParameterError, simulate
-from reduced.simulate import plan_recording
 
 P = BalanceParams(beta=20.0)
 
@@ -149,7 +149,7 @@ def test_same_seed_same_numbers_whatever_threads_and_realisation_count():
 
 
 def test_chunking_does_not_change_results(monkeypatch):
-    from reduced import _driver
+    from cipcore import driver as _driver
 
     a = simulate("single", P, 3.0, n_realizations=2, seed=5)
     monkeypatch.setattr(_driver, "CHUNK_STEPS", 777)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cipcore.stats import mean_ci95
 from reduced import (
     BalanceParams,
     ParameterError,
@@ -14,7 +15,6 @@ from reduced import (
     discrete_exponent,
     lyapunov,
 )
-from reduced.lyapunov import mean_ci95
 
 
 @pytest.mark.parametrize("model", ["single", "coupled"])

@@ -14,8 +14,8 @@ import numpy as np
 from cip.lyapunov import lyapunov_full
 from cip.model import small_angle_limit
 from cip.simulate import simulate_full
+from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
-from reduced.schema import Trajectory
 
 from . import metrics
 from .profiles import PAPER_BETA, Profile

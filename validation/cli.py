@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reduced.params import PAPER, BalanceParams, ParameterError
+from cipcore.params import PAPER, BalanceParams, ParameterError
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 

@@ -6,7 +6,7 @@ import argparse
 
 import numpy as np
 
-from reduced.params import ParameterError
+from cipcore.params import ParameterError
 from validation.cli import EXIT_OK, _dump, _model_args, _params, _run_args
 
 

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from reduced.lyapunov import ci95_half_width
+from cipcore.stats import ci95_half_width
 
 PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
 
@@ -47,7 +47,7 @@ class Check:
 def t_half_width(x: np.ndarray) -> float:
     """Student-t 95 % half-width of the finite values of ``x`` (NaN for fewer than 2)."""
     x = np.asarray(x, dtype=float)
-    return ci95_half_width(x[np.isfinite(x)])
+    return ci95_half_width(x, finite_only=True)
 
 
 def ci_overlap(m1: float, ci1, m2: float, ci2) -> tuple[str, dict]:

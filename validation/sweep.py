@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from reduced.params import BalanceParams, ParameterError
+from cipcore.params import BalanceParams, ParameterError
 
 REDUCED_KEYS = ("beta", "alpha", "gamma", "nu", "tau", "dt")
 PHYSICAL_KEYS = (

@@ -22,7 +22,6 @@ import math
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-MODELS = ("single", "coupled")
 STEPPERS = ("semi-implicit", "explicit")
 
 #: The paper's parameters (section 2.2): gamma = 50, alpha = 22, nu = 0.6, tau = 0.1.

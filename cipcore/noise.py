@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .params import check_count
+from .params import ParameterError, check_count
 
 
 class _NoiseSource:
@@ -148,3 +148,18 @@ class ArrayNoise(_NoiseSource):
             raise ValueError(f"ArrayNoise holds {self.n_steps} steps; asked for step {p + n}")
         out[...] = self.xi[realization, p : p + n]
         self._pos[realization] = p + n
+
+
+def make_noise(
+    noise: GainNoise | ArrayNoise | None, seed: int, n_realizations: int, nc: int
+) -> GainNoise | ArrayNoise:
+    """A fresh seeded :class:`GainNoise`, or ``noise`` checked for C streams at step 0."""
+    if noise is None:
+        return GainNoise(seed, check_count("realizations", n_realizations), nc)
+    if noise.n_controllers != nc:
+        raise ParameterError(
+            f"noise has {noise.n_controllers} controller stream(s), the model needs {nc}"
+        )
+    if noise.position != 0:
+        raise ParameterError("noise must be at step 0 (call noise.reset())")
+    return noise

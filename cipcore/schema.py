@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from .params import ParameterError, check_count
+
 UNITS: dict[str, str] = {
     "tip_position": "m",
     "tip_velocity": "m/s",
@@ -98,3 +100,53 @@ def _jsonable(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+#: Memory cap for the recorded arrays; raise it explicitly with ``max_bytes``.
+DEFAULT_MAX_BYTES = 2 * 1024**3
+
+
+def check_amplitude(amplitude: float) -> float:
+    a = float(amplitude)
+    if not np.isfinite(a):
+        raise ParameterError(f"amplitude must be a finite number (m), got {amplitude!r}")
+    return a
+
+
+def plan_recording(
+    n_steps: int,
+    n_realizations: int,
+    nc: int,
+    decimate: int,
+    fields: tuple[str, ...],
+    dtype: np.dtype,
+    max_bytes: int,
+    allowed: tuple[str, ...] = COMMON_FIELDS,
+) -> int:
+    """Check the recording request and return the number of samples."""
+    decimate = check_count("decimate", decimate)
+    for f in fields:
+        if f not in allowed:
+            raise ParameterError(f"fields: unknown field {f!r}; allowed: {', '.join(allowed)}")
+    n_samples = -(-n_steps // decimate)
+    need = n_samples * n_realizations * nc * len(fields) * np.dtype(dtype).itemsize
+    if need > max_bytes:
+        raise ParameterError(
+            f"recording {len(fields)} field(s) x {n_realizations} realisations x {n_samples} "
+            f"samples needs {need / 2**30:.2f} GiB > max_bytes {max_bytes / 2**30:.2f} GiB; "
+            "raise decimate, record fewer fields, use dtype=float32 or raise max_bytes"
+        )
+    return n_samples
+
+
+def check_duration(duration: float) -> float:
+    """``duration`` (s) as a finite float > 0, or a one-line :class:`ParameterError`."""
+    try:
+        d = float(duration)
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"duration must be a number of seconds > 0, got {duration!r}"
+        ) from None
+    if not np.isfinite(d) or d <= 0:
+        raise ParameterError(f"duration must be finite and > 0 s, got {duration!r}")
+    return d

@@ -1,0 +1,138 @@
+"""Rigid-body engines of the registry: the CIP stepped by a rollout backend.
+
+Every rigid-body engine shares the model (the MJCF of :mod:`cip.model`), the
+delayed random-gain control of :mod:`cip.runner` and the drivers
+:func:`cip.simulate.simulate_full` and :func:`cip.lyapunov.lyapunov_full`;
+what differs is the :class:`cip.runner.RolloutBackend` that advances the
+states over a delay chunk.  :data:`MUJOCO` is MuJoCo on the CPU.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cipcore.engine import Capabilities
+from cipcore.models import BalanceModel, get_model
+from cipcore.params import BalanceParams
+from cipcore.results import LyapunovResult
+from cipcore.schema import Trajectory
+
+from .lyapunov import lyapunov_full
+from .model import CIPParams
+from .runner import CIPRunner, MujocoRollout, RolloutBackend
+from .simulate import simulate_full
+
+
+class RigidBodyChunks:
+    """:class:`cipcore.engine.ChunkRunner` view of a :class:`CIPRunner`."""
+
+    def __init__(self, runner: CIPRunner) -> None:
+        self.runner = runner
+        self.n_realizations = runner.n_realizations
+        self.max_chunk = runner.d
+
+    @property
+    def step(self) -> int:
+        return self.runner.step
+
+    def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]:
+        before = self.runner.state
+        states = self.runner.advance(xi)
+        sel = np.concatenate([before[:, None], states[:, :-1]], axis=1)
+        return self.runner.fields(sel)
+
+
+@dataclass
+class RigidBodyEngine:
+    """A rigid-body CIP engine: a name, its capabilities and its rollout backend.
+
+    ``backend`` is a zero-argument callable returning the backend class (so that
+    an engine whose package is absent can still be listed); ``requires`` names
+    the modules it needs, checked by :meth:`unavailable`.
+    """
+
+    name: str
+    capabilities: Capabilities
+    backend: Any
+    requires: tuple[str, ...] = ()
+    probe: Any = None
+    notes: str = ""
+    _why: str | None = field(default=None, init=False, repr=False)
+
+    def unavailable(self) -> str | None:
+        import importlib.util
+
+        for mod in self.requires:
+            if importlib.util.find_spec(mod) is None:
+                return (
+                    f"Python package {mod!r} is not installed (pip install 'cipval[{self.name}]')"
+                )
+        if self.probe is not None:
+            return self.probe()
+        return None
+
+    def _backend(self) -> type[RolloutBackend]:
+        return self.backend()
+
+    def runner(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        physical: CIPParams | None = None,
+    ) -> RigidBodyChunks:
+        physical = physical or CIPParams.from_reduced(params)
+        r = CIPRunner(
+            get_model(model).name, params, physical, n_realizations, amplitude,
+            threads=1, backend=self._backend(),
+        )  # fmt: skip
+        return RigidBodyChunks(r)
+
+    def simulate(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 1,
+        seed: int = 0,
+        **options: Any,
+    ) -> Trajectory:
+        return simulate_full(
+            get_model(model).name, params, duration, n_realizations, seed,
+            backend=self._backend(), engine_name=self.name, **options,
+        )  # fmt: skip
+
+    def lyapunov(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 8,
+        seed: int = 0,
+        **options: Any,
+    ) -> LyapunovResult:
+        return lyapunov_full(
+            get_model(model).name, params, duration, n_realizations, seed,
+            backend=self._backend(), **options,
+        )  # fmt: skip
+
+
+MUJOCO = RigidBodyEngine(
+    name="mujoco",
+    capabilities=Capabilities(
+        precision="float64",
+        device="cpu",
+        rigid_body=True,
+        linearize=True,
+        deterministic=True,
+        family="MuJoCo",
+        trajectory_tolerance=1e-2,
+    ),
+    backend=lambda: MujocoRollout,
+    notes="MuJoCo C engine, mujoco.rollout across threads",
+)

@@ -1,0 +1,120 @@
+"""The engine interface: what every engine, and the reference model, provides.
+
+An *engine* advances a batch of realisations of a balancing model
+(:mod:`cipcore.models`) under the paper's delayed random-gain feedback
+
+    F_i(t) = beta R_i(t) e_i(t - tau),   R_i = 1 + nu xi_i / sqrt(dt)      (eq. sss08:TM)
+
+with the noise drawn from the shared per-realisation streams
+(:mod:`cipcore.noise`), so that the same seed means the same draws in every
+engine.  Because the control over the next tau depends only on states already
+computed, an engine advances at most one delay chunk (d = tau/dt steps) at a
+time under controls known in advance (:class:`ChunkRunner`).  Results come
+back in the shared schema (:class:`cipcore.schema.Trajectory`,
+:class:`cipcore.results.LyapunovResult`).
+
+A new backend is one module with an object satisfying :class:`Engine` plus one
+entry in :data:`cipcore.registry.ENGINES` (or a ``cipval.engines`` entry point).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from .models import BalanceModel
+from .params import BalanceParams
+from .results import LyapunovResult
+from .schema import Trajectory
+
+
+@dataclass(frozen=True)
+class Capabilities:
+    """What an engine can do, declared by the engine itself.
+
+    Attributes
+    ----------
+    precision : "float64" or "float32": the floating-point type of its state.
+    device : "cpu" or "gpu".
+    rigid_body : True when it simulates the rigid-body CIP (angles, carts, a rod
+        constraint, a small-angle regime), False for the reduced reference.
+    linearize : True when it can return its linearisation about upright.
+    deterministic : True when the same seed gives bit-identical numbers for any
+        thread count and batch split.
+    family : the engine family (e.g. "MuJoCo", "Drake", "reference").
+    trajectory_tolerance : the relative trajectory distance to the reduced model
+        at small amplitude that the engine's precision allows (the contract tests
+        and ``cip-validate engines`` hold it to this).
+    """
+
+    precision: str
+    device: str
+    rigid_body: bool
+    linearize: bool
+    deterministic: bool = True
+    family: str = ""
+    trajectory_tolerance: float = 1e-2
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@runtime_checkable
+class ChunkRunner(Protocol):
+    """A batch of realisations advanced at most ``max_chunk`` steps at a time.
+
+    ``advance(xi)`` takes the standard-normal draws xi (R, n, C) of the next n
+    steps and returns the shared schema's fields (R, n, C) sampled *before*
+    each of those steps (sample j is the state at step ``step + j``), so that
+    concatenating the chunks gives the :class:`Trajectory` of the run.
+    """
+
+    n_realizations: int
+    max_chunk: int
+    step: int
+
+    def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]: ...
+
+
+@runtime_checkable
+class Engine(Protocol):
+    """An engine in the registry (see the module docstring)."""
+
+    name: str
+    capabilities: Capabilities
+
+    def unavailable(self) -> str | None:
+        """None when usable here, else the reason (missing package, no device)."""
+        ...
+
+    def runner(
+        self,
+        model: BalanceModel,
+        params: BalanceParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        physical: Any = None,
+    ) -> ChunkRunner: ...
+
+    def simulate(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 1,
+        seed: int = 0,
+        **options: Any,
+    ) -> Trajectory: ...
+
+    def lyapunov(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 8,
+        seed: int = 0,
+        **options: Any,
+    ) -> LyapunovResult: ...

@@ -1,0 +1,91 @@
+"""The registry of engines: the only place that knows engine names.
+
+Entries are ``"module:attribute"`` strings imported on first use, so that an
+engine whose package is missing (JAX, Drake, warp) costs nothing until it is
+asked for and is then reported with the reason (:func:`availability`).
+Third-party engines register through the ``cipval.engines`` entry-point group
+(value ``"module:attribute"``), with no change to this file.
+"""
+
+from __future__ import annotations
+
+import importlib
+from importlib.metadata import entry_points
+
+from .engine import Engine
+from .params import ParameterError
+
+#: name -> "module:attribute" of an object satisfying :class:`cipcore.engine.Engine`.
+#: The first entry is the reference every other engine is validated against.
+ENGINES: dict[str, str] = {
+    "reduced": "reduced.engine:ENGINE",
+    "mujoco": "cip.engines:MUJOCO",
+    "mjx": "cip.mjx:ENGINE",
+}
+
+REFERENCE = "reduced"
+
+_loaded: dict[str, Engine] = {}
+_import_errors: dict[str, str] = {}
+
+
+def _entries() -> dict[str, str]:
+    entries = dict(ENGINES)
+    for ep in entry_points(group="cipval.engines"):
+        entries.setdefault(ep.name, ep.value)
+    return entries
+
+
+def engine_names() -> tuple[str, ...]:
+    """Every registered engine, installed or not, the reference first."""
+    return tuple(_entries())
+
+
+def _load(name: str) -> Engine | None:
+    if name in _loaded:
+        return _loaded[name]
+    if name in _import_errors:
+        return None
+    module, _, attr = _entries()[name].partition(":")
+    try:
+        engine = getattr(importlib.import_module(module), attr)
+    except ImportError as exc:  # the engine's module needs a package that is absent
+        _import_errors[name] = f"cannot import {module}: {exc}"
+        return None
+    _loaded[name] = engine
+    return engine
+
+
+def check_engine_name(name: str) -> str:
+    """``name`` if registered, else a one-line error listing the registered engines."""
+    if name not in _entries():
+        raise ParameterError(f"engine must be one of {', '.join(engine_names())}, got {name!r}")
+    return name
+
+
+def availability(name: str) -> str | None:
+    """None when engine ``name`` can run here, else why not (one line)."""
+    engine = _load(check_engine_name(name))
+    if engine is None:
+        return _import_errors[name]
+    return engine.unavailable()
+
+
+def get_engine(name: str) -> Engine:
+    """The engine called ``name``; a one-line :class:`ParameterError` if unknown or unusable."""
+    reason = availability(name)
+    if reason is not None:
+        raise ParameterError(f"engine {name!r} is not available here: {reason}")
+    engine = _loaded[name]
+    return engine
+
+
+def engines_with(**capabilities: object) -> tuple[str, ...]:
+    """Names of the available engines whose capabilities have the given values."""
+    out = []
+    for name in engine_names():
+        if availability(name) is None:
+            caps = _loaded[name].capabilities
+            if all(getattr(caps, k) == v for k, v in capabilities.items()):
+                out.append(name)
+    return tuple(out)

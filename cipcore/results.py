@@ -1,0 +1,49 @@
+"""Result types every engine returns.
+
+:class:`LyapunovResult` is the largest Lyapunov exponent lambda1 (1/s) of a
+batch of realisations, whichever engine computed it: the mean over
+realisations and its Student-t 95 % CI (:mod:`cipcore.stats`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .params import ParameterError
+
+
+@dataclass
+class LyapunovResult:
+    """lambda1 (1/s): mean over realisations and its 95 % confidence interval."""
+
+    lambda1: float
+    ci95: tuple[float, float]
+    per_realization: np.ndarray
+    duration: float
+    transient: float
+    model: str
+    params: dict = field(default_factory=dict)
+    seed: int = 0
+
+    @property
+    def sem(self) -> float:
+        n = len(self.per_realization)
+        return float(np.std(self.per_realization, ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        d["per_realization"] = self.per_realization.tolist()
+        d["ci95"] = [None if not np.isfinite(v) else float(v) for v in self.ci95]
+        d["sem"] = None if not np.isfinite(self.sem) else self.sem
+        d["n_realizations"] = len(self.per_realization)
+        return d
+
+
+def check_transient(transient: float | None, duration: float) -> float:
+    """The transient to discard (s): default min(10 s, duration / 10), in [0, duration)."""
+    t = min(10.0, duration / 10) if transient is None else float(transient)
+    if not (0 <= t < duration):
+        raise ParameterError(f"transient must be in [0, duration = {duration}) s, got {transient}")
+    return t

@@ -1,0 +1,116 @@
+"""The reduced model as the registry's reference engine.
+
+It answers the same :class:`cipcore.engine.Engine` calls as the rigid-body
+engines (:func:`reduced.simulate.simulate`, :func:`reduced.lyapunov.lyapunov`,
+and a chunk runner over the same compiled kernel), so that every engine is
+validated against it by the same code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cipcore.engine import Capabilities
+from cipcore.models import BalanceModel, get_model
+from cipcore.params import BalanceParams
+from cipcore.results import LyapunovResult
+from cipcore.schema import Trajectory, check_amplitude
+
+from . import _kernels
+from .lyapunov import lyapunov
+from .simulate import simulate
+
+#: The reduced kernel has no chunk limit of its own; the runner accepts this many steps.
+MAX_CHUNK = 1 << 20
+
+
+class ReducedChunks:
+    """:class:`cipcore.engine.ChunkRunner` over the reduced kernel (semi-implicit stepper)."""
+
+    def __init__(
+        self, model: BalanceModel, params: BalanceParams, n_realizations: int, amplitude: float
+    ) -> None:
+        nc = model.n_controllers
+        self.params = params
+        self.n_realizations = n_realizations
+        self.max_chunk = MAX_CHUNK
+        self.step = 0
+        self.d = params.delay_steps
+        self.state = np.zeros((n_realizations, 2 + 2 * nc))
+        self.state[:, 0] = amplitude
+        self.hist = np.full((n_realizations, nc, self.d), amplitude)
+
+    def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]:
+        p, n = self.params, xi.shape[1]
+        rec = np.empty((xi.shape[0], n, xi.shape[2], 4))
+        _kernels.advance_positions(
+            np.ascontiguousarray(xi, dtype=float), self.state, self.hist, self.step % self.d,
+            p.alpha, p.beta, p.gamma, p.noise_scale, p.dt, True, self.step, 1, rec,
+        )  # fmt: skip
+        self.step += n
+        return {
+            "tip_position": rec[..., 0],
+            "tip_velocity": rec[..., 1],
+            "base_position": rec[..., 2],
+            "base_velocity": rec[..., 3],
+            "balancing_error": rec[..., 0] - rec[..., 2],
+            "balancing_error_velocity": rec[..., 1] - rec[..., 3],
+        }
+
+
+class ReducedEngine:
+    """The paper's reduced linear model (eqs. bormann04:TM, sss08:TM), float64 on the CPU."""
+
+    name = "reduced"
+    capabilities = Capabilities(
+        precision="float64",
+        device="cpu",
+        rigid_body=False,
+        linearize=False,
+        family="reference",
+        trajectory_tolerance=0.0,
+    )
+    notes = "the paper's reduced linear model, numba kernel"
+
+    def unavailable(self) -> str | None:
+        return None
+
+    def runner(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        physical: Any = None,
+    ) -> ReducedChunks:
+        return ReducedChunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
+
+    def simulate(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 1,
+        seed: int = 0,
+        **options: Any,
+    ) -> Trajectory:
+        options.pop("physical", None)
+        return simulate(get_model(model).name, params, duration, n_realizations, seed, **options)
+
+    def lyapunov(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 8,
+        seed: int = 0,
+        **options: Any,
+    ) -> LyapunovResult:
+        options.pop("physical", None)
+        return lyapunov(get_model(model).name, params, duration, n_realizations, seed, **options)
+
+
+ENGINE = ReducedEngine()
