@@ -51,7 +51,10 @@ class RigidBodyEngine:
 
     ``backend`` is a zero-argument callable returning the backend class (so that
     an engine whose package is absent can still be listed); ``requires`` names
-    the modules it needs, checked by :meth:`unavailable`.
+    the modules it needs, checked by :meth:`unavailable`; ``probe`` (optional)
+    returns a reason the engine cannot run here (e.g. no GPU); ``max_threads``
+    caps the realisation blocks run concurrently (1 for engines that batch all
+    realisations in one call).
     """
 
     name: str
@@ -59,6 +62,7 @@ class RigidBodyEngine:
     backend: Any
     requires: tuple[str, ...] = ()
     probe: Any = None
+    max_threads: int | None = None
     notes: str = ""
     _why: str | None = field(default=None, init=False, repr=False)
 
@@ -102,6 +106,8 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Any,
     ) -> Trajectory:
+        if self.max_threads is not None:
+            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         return simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
             backend=self._backend(), engine_name=self.name, **options,
@@ -116,6 +122,8 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Any,
     ) -> LyapunovResult:
+        if self.max_threads is not None:
+            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         return lyapunov_full(
             get_model(model).name, params, duration, n_realizations, seed,
             backend=self._backend(), **options,
