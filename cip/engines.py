@@ -20,6 +20,7 @@ from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
 from cipcore.schema import Trajectory
 
+from .linearize import linearize
 from .lyapunov import lyapunov_full
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
@@ -63,6 +64,7 @@ class RigidBodyEngine:
     requires: tuple[str, ...] = ()
     probe: Any = None
     max_threads: int | None = None
+    linearizer: Any = None
     notes: str = ""
     _why: str | None = field(default=None, init=False, repr=False)
 
@@ -129,6 +131,13 @@ class RigidBodyEngine:
             backend=self._backend(), **options,
         )  # fmt: skip
 
+    def linearize(self, model: BalanceModel | str, physical: CIPParams | None = None):
+        """The engine's linearisation about upright beside the reduced model's
+        (:class:`cip.linearize.Linearization`), or None where it has none."""
+        if self.linearizer is None:
+            return None
+        return self.linearizer(get_model(model).name, physical)
+
 
 MUJOCO = RigidBodyEngine(
     name="mujoco",
@@ -142,5 +151,6 @@ MUJOCO = RigidBodyEngine(
         trajectory_tolerance=1e-2,
     ),
     backend=lambda: MujocoRollout,
+    linearizer=linearize,
     notes="MuJoCo C engine, mujoco.rollout across threads",
 )

@@ -144,3 +144,40 @@ def test_array_noise_and_gain_noise_agree_across_engines() -> None:
     a = get_engine(REFERENCE).simulate("single", P, 0.5, noise=ArrayNoise(xi, seed=2))
     b = get_engine(REFERENCE).simulate("single", P, 0.5, 2, seed=2)
     assert np.array_equal(a["balancing_error"], b["balancing_error"])
+
+
+def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> None:
+    """`cip-validate engines --json`, smoke size: verdicts, throughputs, skips with reasons."""
+    import json
+
+    from validation.cli import main
+
+    rc = main(["engines", "--engines", "reduced,mujoco", "--profile", "smoke", "--json",
+               "--out", str(tmp_path), "--no-figures"])  # fmt: skip
+    res = json.loads(capsys.readouterr().out)
+    rows = {r["engine"]: r for r in res["engines"]}
+    assert set(rows) == {"reduced", "mujoco"}
+    assert rc == (1 if res["status"] == "fail" else 0)
+    m = rows["mujoco"]
+    assert m["checks"]["trajectory"] == "pass" and m["checks"]["rod"] == "pass"
+    assert m["throughput"]["ratio_to_mujoco"] == 1.0
+    assert 0 < m["trajectory_distance"]["coupled"] < 1e-2
+    assert (tmp_path / "report.md").read_text().count("| mujoco |") == 1
+
+
+def test_engines_command_rejects_an_unknown_engine(capsys) -> None:
+    from validation.cli import main
+
+    assert main(["engines", "--engines", "reduced,bullet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "engine must be one of" in err[0] and "bullet" in err[0]
+
+
+def test_an_absent_engine_is_listed_as_skipped_with_the_reason(monkeypatch) -> None:
+    from cipcore import registry
+    from validation.engines import compare_engines
+
+    monkeypatch.setitem(registry.ENGINES, "absent", "cipval_no_such_module:ENGINE")
+    res = compare_engines(["absent"], "smoke")
+    (row,) = res["engines"]
+    assert row["status"] == "skipped" and "cipval_no_such_module" in row["reason"]

@@ -183,9 +183,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_stability)
 
+    from validation.cmd_engines import add_engines_command
     from validation.commands import add_commands
 
     add_commands(sub)
+    add_engines_command(sub)
     return parser
 
 
