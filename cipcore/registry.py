@@ -21,6 +21,7 @@ ENGINES: dict[str, str] = {
     "reduced": "reduced.engine:ENGINE",
     "mujoco": "cip.engines:MUJOCO",
     "mjx": "cip.mjx:ENGINE",
+    "drake": "cip.drake:ENGINE",
 }
 
 REFERENCE = "reduced"
