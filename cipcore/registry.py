@@ -21,6 +21,8 @@ ENGINES: dict[str, str] = {
     "reduced": "reduced.engine:ENGINE",
     "mujoco": "cip.engines:MUJOCO",
     "mjx": "cip.mjx:ENGINE",
+    "mujoco-warp": "cip.warp:ENGINE",
+    "reduced-gpu": "reduced.gpu:ENGINE",
 }
 
 REFERENCE = "reduced"
