@@ -31,57 +31,27 @@ non-finite states.  Reductions are made deterministic
 
 from __future__ import annotations
 
-import importlib.util
-import os
 from typing import Any
 
 import numpy as np
 
 from cipcore.engine import Capabilities
+from cipcore.gpu import declared_device, warp_device, warp_unavailable
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams, ParameterError
 
 from .engines import RigidBodyEngine
 from .model import CIPParams, build
 
-#: Environment variable choosing the device: "cuda" (default) or "cpu" (warp's CPU device).
-DEVICE_ENV = "CIPVAL_WARP_DEVICE"
-DEVICES = ("cuda", "cpu")
-REQUIRES = ("warp", "mujoco_warp")
-
-
-def requested_device() -> str:
-    """The device asked for through ``CIPVAL_WARP_DEVICE`` ("cuda" unless set to "cpu")."""
-    dev = os.environ.get(DEVICE_ENV, "cuda").strip().lower() or "cuda"
-    if dev not in DEVICES:
-        raise ParameterError(f"{DEVICE_ENV} must be one of {', '.join(DEVICES)}, got {dev!r}")
-    return dev
-
 
 def unavailable_reason() -> str | None:
     """None when mujoco-warp can run here, else why not (one line)."""
-    for mod in REQUIRES:
-        if importlib.util.find_spec(mod) is None:
-            return f"Python package {mod!r} is not installed (pip install 'cipval[warp]')"
-    try:
-        dev = requested_device()
-    except ParameterError as exc:
-        return str(exc)
-    if dev == "cpu":
-        return None
-    from .warp_batch import cuda_available
-
-    if not cuda_available():
-        return (
-            f"no CUDA device (warp sees only the CPU); set {DEVICE_ENV}=cpu to run "
-            "mujoco-warp on warp's CPU device (slow, for tests)"
-        )
-    return None
+    return warp_unavailable(("warp", "mujoco_warp"))
 
 
 def device() -> str:
     """The warp device the engine runs on: "cuda:0" or "cpu"."""
-    return "cpu" if requested_device() == "cpu" else "cuda:0"
+    return warp_device()
 
 
 def rollout_backend() -> type:
@@ -164,13 +134,9 @@ class WarpEngine(RigidBodyEngine):
 
 
 def _capabilities() -> Capabilities:
-    try:
-        on_cpu = requested_device() == "cpu"
-    except ParameterError:
-        on_cpu = False
     return Capabilities(
         precision="float32",
-        device="cpu" if on_cpu else "gpu",
+        device=declared_device(),
         rigid_body=True,
         linearize=False,
         deterministic=True,
