@@ -92,6 +92,8 @@ class WarpChunks:
         n_realizations: int,
         amplitude: float,
         physical: CIPParams,
+        *,
+        device: str | None = None,
     ) -> None:
         from .warp_batch import WarpBatch
 
@@ -102,7 +104,7 @@ class WarpChunks:
         ctl = point_control(params, physical, amplitude)
         self.batch = WarpBatch(
             [build(model.name, physical)], [ctl], n_realizations, model.n_controllers,
-            device(), max_chunk=params.delay_steps, every=1,
+            device or warp_device(), max_chunk=params.delay_steps, every=1,
         )  # fmt: skip
         self.length = np.full(n_realizations, ctl.length)
         self.n_realizations = n_realizations

@@ -72,6 +72,8 @@ def _delayed_gain_control(
         hist[w, c, slot] = e
         ctrl[w, u_idx[c]] = gain[w] * (f32(1.0) + scale[w] * xi[w, k, c]) * e_delayed
         a = wp.abs(th)
+        if step[0] + k == 0:  # the largest angle after steps 1.., as the CPU driver records
+            continue
         if wp.isnan(a) or wp.isinf(a):
             max_angle[w] = wp.inf
         elif a > max_angle[w]:
@@ -396,8 +398,12 @@ class WarpBatch:
         wp.synchronize_device(self.device)
 
     def max_abs_angle(self) -> np.ndarray:
-        """Largest |theta| (rad) of each world so far (inf once non-finite)."""
-        return self.max_angle.numpy().astype(float)
+        """Largest |theta| (rad) of each world after steps 1 .. step (inf once non-finite)."""
+        a = np.abs(self.dx.qpos.numpy()[:, self.i_th].astype(float)).max(axis=1)
+        a = np.where(np.isfinite(a), a, np.inf)
+        return (
+            np.maximum(self.max_angle.numpy().astype(float), a) if self.step else np.zeros_like(a)
+        )
 
     def fields(self, rec: np.ndarray, length: np.ndarray) -> dict[str, np.ndarray]:
         """The shared schema's fields (..., C) from recorded (qpos, qvel) (W, S, nq + nv).
