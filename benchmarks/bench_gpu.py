@@ -141,9 +141,10 @@ def main(argv: list[str] | None = None) -> int:
         b.synchronize()
         print(f"paper workload 100 x 1200 s: {time.perf_counter() - t0:.1f} s wall (measured)")
     else:
-        r100, _ = gpu_rate(100 if device != "cpu" else 4, device, chunks, args.seed)
-        print(f"paper workload 100 x 1200 s: {100 * n_paper / r100:.1f} s wall "
-              f"(projected from {chunks} chunks; --full measures it)")  # fmt: skip
+        w100 = 100 if device != "cpu" else 4
+        r100, _ = gpu_rate(w100, device, chunks, args.seed)
+        print(f"paper workload 100 x 1200 s: {100 * n_paper / r100:.1f} s wall (projected from "
+              f"{chunks} chunks of {w100} worlds; --full measures it)")  # fmt: skip
 
     # sweep: 64 points x 1024 realisations x 30 s, packed, recording every 5th step
     n_pts, n_real = (64, 1024) if device != "cpu" else (4, 2)
