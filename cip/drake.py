@@ -65,7 +65,8 @@ class DrakeRollout:
     model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
         physical parameter and of the state layout.
     n_realizations : number of realisations (one Drake ``Context`` each).
-    threads : ignored (pydrake steps hold the Python interpreter).
+    threads : ignored: ``ExecuteForcedEvents`` holds the GIL (two threads stepping two
+        plants took as long as one thread stepping both), so the engine runs one block.
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
@@ -139,5 +140,6 @@ ENGINE = RigidBodyEngine(
     ),
     backend=lambda: DrakeRollout,
     requires=("pydrake",),
+    max_threads=1,  # pydrake's discrete step holds the GIL: threads would only add plants
     notes="Drake MultibodyPlant, discrete SAP, rod as a distance constraint",
 )
