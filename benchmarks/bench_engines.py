@@ -1,13 +1,14 @@
-"""Throughput of registered engines vs MuJoCo on the CPU, measured in the same run.
+"""Throughput of every registered engine, and its ratio to MuJoCo on the CPU, in one run.
 
-For each model (single, coupled) and engine: ``engine.simulate`` of R
-realisations x the duration at the paper's parameters (beta = 20.306,
-amplitude 1e-3 m, seed 0, balancing error recorded only, one thread), best of
-the repeats after one warm-up call; prints realisation-steps/s and the ratio
-to the baseline engine.  Engines that are not available are listed as skipped
-with the reason.
-Usage:  python benchmarks/bench_engines.py [--engines mujoco,drake] [--realizations 16]
-        [--duration 1] [--repeats 2]
+For the coupled CIP at the paper's coupled gain, each available engine
+simulates R realisations for ``--duration`` s (delayed random-gain control,
+noise, recording of the balancing errors) after one warm-up call of the same
+shape (compilation is reported separately as "first call").  Prints
+realisation-steps/s per engine and batch size, and the ratio to the engine
+named by ``--baseline`` measured in the same run.
+
+Usage:  python benchmarks/bench_engines.py [--engines mujoco,mjx] [--realizations 1,16,128]
+                                           [--duration 1] [--threads N]
 """
 
 from __future__ import annotations
@@ -16,43 +17,42 @@ import argparse
 import time
 
 from cipcore.params import BalanceParams
-from cipcore.registry import availability, get_engine
-
-BASELINE = "mujoco"
-
-
-def rate(name: str, model: str, p: BalanceParams, nreal: int, duration: float) -> float:
-    """Realisation-steps per second of one ``simulate`` call."""
-    engine = get_engine(name)
-    t = time.perf_counter()
-    engine.simulate(model, p, duration, nreal, seed=0, amplitude=1e-3, threads=1,
-                    fields=("balancing_error",))  # fmt: skip
-    return nreal * round(duration / p.dt) / (time.perf_counter() - t)
+from cipcore.registry import availability, engine_names, get_engine
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--engines", default="mujoco,drake")
-    ap.add_argument("--realizations", type=int, default=16)
-    ap.add_argument("--duration", type=float, default=1.0)
-    ap.add_argument("--repeats", type=int, default=2)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--engines", default=",".join(engine_names()))
+    ap.add_argument("--realizations", default="1,16,128")
+    ap.add_argument("--duration", type=float, default=1.0, help="simulated s per realisation")
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--baseline", default="mujoco")
     a = ap.parse_args()
-    names = [BASELINE] + [n for n in a.engines.split(",") if n and n != BASELINE]
-    p = BalanceParams(beta=20.306)
-    print(f"{a.realizations} realisations x {round(a.duration / p.dt)} steps, 1 thread, "
-          f"best of {a.repeats} after a warm-up call")  # fmt: skip
-    for model in ("single", "coupled"):
-        base = None
-        for name in names:
-            why = availability(name)
-            if why is not None:
-                print(f"  {model:7s} {name:8s} skipped: {why}")
-                continue
-            rate(name, model, p, a.realizations, min(a.duration, 0.1))  # warm-up
-            r = max(rate(name, model, p, a.realizations, a.duration) for _ in range(a.repeats))
-            base = base or r
-            print(f"  {model:7s} {name:8s} {r:12.4g} realisation-steps/s   "
-                  f"ratio to {BASELINE} {r / base:.4g}")  # fmt: skip
+    p = BalanceParams(beta=21.032)
+    steps = round(a.duration / p.dt)
+    sizes = [int(s) for s in a.realizations.split(",")]
+    rate: dict[tuple[str, int], float] = {}
+    print(f"coupled CIP, {a.duration:g} s = {steps} steps per realisation, threads {a.threads}")
+    print(
+        f"{'engine':12s} {'R':>7s} {'first call s':>13s} {'steps/s':>12s} {'x ' + a.baseline:>12s}"
+    )
+    for name in a.engines.split(","):
+        why = availability(name)
+        if why is not None:
+            print(f"{name:12s} skipped: {why}")
+            continue
+        eng = get_engine(name)
+        for r in sizes:
+            kw = dict(amplitude=1e-3, threads=a.threads, fields=("balancing_error",))
+            t0 = time.perf_counter()
+            eng.simulate("coupled", p, a.duration, r, 0, **kw)
+            first = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            eng.simulate("coupled", p, a.duration, r, 0, **kw)
+            rate[name, r] = r * steps / (time.perf_counter() - t0)
+            base = rate.get((a.baseline, r))
+            ratio = f"{rate[name, r] / base:12.3f}" if base else f"{'n/a':>12s}"
+            print(f"{name:12s} {r:7d} {first:13.2f} {rate[name, r]:12.4g} {ratio}")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,9 @@ MJX raises no MuJoCo warnings: divergence is detected from non-finite states.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 from typing import Any
 
 import mujoco
@@ -50,7 +52,11 @@ def _compiled_chunk(model: mujoco.MjModel):
 
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
-    from mujoco import mjx
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        # mujoco.mjx prints "Failed to import warp" on stdout when warp is absent
+        # (its optional warp path); keep stdout clean for --json output.
+        from mujoco import mjx
 
     mx = mjx.put_model(model)
     d0 = mjx.make_data(mx)

@@ -22,6 +22,8 @@ ENGINES: dict[str, str] = {
     "mujoco": "cip.engines:MUJOCO",
     "mjx": "cip.mjx:ENGINE",
     "drake": "cip.drake:ENGINE",
+    "mujoco-warp": "cip.warp:ENGINE",
+    "reduced-gpu": "reduced.gpu:ENGINE",
 }
 
 REFERENCE = "reduced"

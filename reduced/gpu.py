@@ -1,0 +1,343 @@
+"""The reduced models on a GPU: one warp thread per realisation, float64.
+
+The same discrete map as :func:`reduced._kernels.advance_positions` (paper eqs.
+bormann04:TM, sss08:TM; semi-implicit or explicit Euler, a d-slot delay ring
+per controller, R_{i,n} = 1 + nu xi_{i,n} / sqrt(dt)), written as a warp kernel.
+The draws xi come from :class:`cipcore.noise.GainNoise` on the host (one PCG64
+stream per realisation) and are uploaded once per chunk, so the noise is the
+same as the CPU kernel's for the same seed and the same for any batch split;
+on warp's CPU device the trajectories equal the numba kernel's to rounding.
+
+Why warp and not CuPy or numba-cuda: numba-cuda failed to compile against numpy
+2.5 on the GPU image; CuPy raw kernels work there but cannot run without a CUDA
+device, whereas a warp kernel also compiles for warp's CPU device, so the very
+kernel that runs on the GPU is tested in CI-like runs against the numba kernel
+(and ``mujoco-warp`` already brings warp).
+
+Where it runs: see :mod:`cipcore.gpu` (a CUDA device, or ``CIPVAL_WARP_DEVICE=cpu``).
+The largest Lyapunov exponent is computed by the CPU kernel
+(:func:`reduced.lyapunov.lyapunov`, the same draws); only trajectories run on the device.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from cipcore.driver import run_blocks
+from cipcore.engine import Capabilities
+from cipcore.gpu import declared_device, warp_device, warp_unavailable
+from cipcore.models import BalanceModel, get_model
+from cipcore.noise import GainNoise, make_noise
+from cipcore.params import STEPPERS, BalanceParams, check_choice, whole_steps
+from cipcore.results import LyapunovResult
+from cipcore.schema import (
+    COMMON_FIELDS,
+    DEFAULT_MAX_BYTES,
+    Trajectory,
+    check_amplitude,
+    check_duration,
+    plan_recording,
+)
+
+from .lyapunov import lyapunov
+from .simulate import _store
+
+#: Steps per uploaded chunk of draws (R * 4096 * C * 8 bytes on the device).
+GPU_CHUNK_STEPS = 4096
+
+_KERNEL: dict[str, Any] = {}
+
+
+def _kernel():
+    """The warp kernel, built on first use (warp is an optional dependency)."""
+    if "k" in _KERNEL:
+        return _KERNEL["k"]
+    import warp as wp
+
+    wp.config.quiet = True
+    wp.init()
+    f64 = wp.float64
+
+    @wp.kernel
+    def advance_positions(
+        xi: wp.array3d(dtype=f64),
+        state: wp.array2d(dtype=f64),
+        hist: wp.array3d(dtype=f64),
+        pos: int,
+        alpha: f64,
+        beta: f64,
+        gamma: f64,
+        noise_scale: f64,
+        dt: f64,
+        semi_implicit: int,
+        n0: int,
+        every: int,
+        rec: wp.array4d(dtype=f64),
+    ):
+        """One realisation per thread: see reduced._kernels.advance_positions."""
+        r = wp.tid()
+        n = xi.shape[1]
+        nc = xi.shape[2]
+        d = hist.shape[2]
+        rec_start = (n0 + every - 1) // every
+        nrec = rec.shape[1]
+        q_t = state[r, 0]
+        v_t = state[r, 1]
+        p = pos
+        one = f64(1.0)
+        for k in range(n):
+            nk = n0 + k
+            if nk % every == 0:
+                j = nk // every - rec_start
+                if j < nrec:
+                    for i in range(nc):
+                        rec[r, j, i, 0] = q_t
+                        rec[r, j, i, 1] = v_t
+                        rec[r, j, i, 2] = state[r, 2 + 2 * i]
+                        rec[r, j, i, 3] = state[r, 3 + 2 * i]
+            esum = f64(0.0)
+            for i in range(nc):
+                q_m = state[r, 2 + 2 * i]
+                v_m = state[r, 3 + 2 * i]
+                e = q_t - q_m
+                esum = esum + e
+                e_delayed = hist[r, i, p]
+                hist[r, i, p] = e
+                a_m = -gamma * v_m + beta * (one + noise_scale * xi[r, k, i]) * e_delayed
+                if semi_implicit != 0:
+                    v_m = v_m + dt * a_m
+                    q_m = q_m + dt * v_m
+                else:
+                    q_m = q_m + dt * v_m
+                    v_m = v_m + dt * a_m
+                state[r, 2 + 2 * i] = q_m
+                state[r, 3 + 2 * i] = v_m
+            a_t = -gamma * v_t + alpha * esum / f64(nc)
+            if semi_implicit != 0:
+                v_t = v_t + dt * a_t
+                q_t = q_t + dt * v_t
+            else:
+                q_t = q_t + dt * v_t
+                v_t = v_t + dt * a_t
+            p = p + 1
+            if p == d:
+                p = 0
+        state[r, 0] = q_t
+        state[r, 1] = v_t
+
+    _KERNEL["k"] = advance_positions
+    _KERNEL["wp"] = wp
+    return advance_positions
+
+
+class DeviceReduced:
+    """State, delay rings and draws of R realisations resident on a warp device.
+
+    Initial condition as :func:`reduced.simulate.simulate`: bases at rest at 0,
+    tip at rest at ``amplitude`` (m), constant error history.
+    """
+
+    def __init__(
+        self,
+        nc: int,
+        params: BalanceParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        device: str | None = None,
+        max_chunk: int = GPU_CHUNK_STEPS,
+        semi_implicit: bool = True,
+    ) -> None:
+        self.kernel = _kernel()
+        wp = _KERNEL["wp"]
+        self.wp, self.device = wp, device or warp_device()
+        self.params, self.nc, self.R = params, nc, n_realizations
+        self.d = params.delay_steps
+        self.semi = int(semi_implicit)
+        state = np.zeros((n_realizations, 2 + 2 * nc))
+        state[:, 0] = amplitude
+        with wp.ScopedDevice(self.device):
+            self.state = wp.array(state, dtype=wp.float64)
+            self.hist = wp.array(np.full((n_realizations, nc, self.d), amplitude), dtype=wp.float64)
+            self.xi = wp.zeros((n_realizations, max_chunk, nc), dtype=wp.float64)
+        self.max_chunk = max_chunk
+        self.step = 0
+        self._rec: dict[int, Any] = {}
+
+    def advance(self, xi: np.ndarray, every: int = 1, fetch: bool = True) -> np.ndarray | None:
+        """Advance by n = xi.shape[1] steps; return the samples (R, S, C, 4) recorded
+        before every step whose global index is a multiple of ``every``
+        ([tip pos, tip vel, base pos, base vel], m and m/s), or None (``fetch`` False)."""
+        wp, p = self.wp, self.params
+        n = xi.shape[1]
+        if n > self.max_chunk:
+            raise ValueError(f"advance at most {self.max_chunk} steps at a time, got {n}")
+        n0 = self.step
+        j0, j1 = -(-n0 // every), -(-(n0 + n) // every)
+        nrec = j1 - j0
+        if nrec not in self._rec:
+            self._rec[nrec] = wp.zeros((self.R, nrec, self.nc, 4), dtype=wp.float64,
+                                       device=self.device)  # fmt: skip
+        rec = self._rec[nrec]
+        xi_dev = self.xi if n == self.max_chunk else self.xi[:, :n]
+        if n == self.max_chunk:
+            xi_dev.assign(np.ascontiguousarray(xi, dtype=np.float64))
+        else:
+            xi_dev = wp.array(np.ascontiguousarray(xi, dtype=np.float64), dtype=wp.float64,
+                              device=self.device)  # fmt: skip
+        wp.launch(
+            self.kernel, self.R,
+            inputs=[xi_dev, self.state, self.hist, n0 % self.d, p.alpha, p.beta, p.gamma,
+                    p.noise_scale, p.dt, self.semi, n0, every, rec],
+            device=self.device,
+        )  # fmt: skip
+        self.step += n
+        return rec.numpy() if fetch else None
+
+    def final_state(self) -> np.ndarray:
+        return self.state.numpy()
+
+
+def simulate_gpu(
+    model: str,
+    params: BalanceParams,
+    duration: float,
+    n_realizations: int = 1,
+    seed: int = 0,
+    *,
+    amplitude: float = 0.01,
+    stepper: str = "semi-implicit",
+    decimate: int = 1,
+    fields: tuple[str, ...] = COMMON_FIELDS,
+    dtype: type | np.dtype = np.float64,
+    noise: GainNoise | None = None,
+    threads: int | None = None,
+    max_bytes: int = DEFAULT_MAX_BYTES,
+    progress: bool = False,
+    device: str | None = None,
+) -> Trajectory:
+    """:func:`reduced.simulate.simulate` with the kernel on a warp device (same arguments).
+
+    ``threads`` is accepted for the common interface and ignored: the whole batch
+    is one launch per chunk.  The returned Trajectory equals the CPU kernel's.
+    """
+    nc = get_model(model).n_controllers
+    check_choice("stepper", stepper, STEPPERS)
+    duration = check_duration(duration)
+    n_steps = whole_steps("duration", duration, params.dt)
+    amplitude = check_amplitude(amplitude)
+    noise = make_noise(noise, seed, n_realizations, nc)
+    nreal = noise.n_realizations
+    n_samples = plan_recording(n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes)
+    chunk = min(GPU_CHUNK_STEPS, n_steps)
+    dev = DeviceReduced(nc, params, nreal, amplitude, device=device, max_chunk=chunk,
+                        semi_implicit=stepper == "semi-implicit")  # fmt: skip
+    out = {f: np.empty((nreal, n_samples, nc), dtype=dtype) for f in fields}
+
+    def work(block: slice, xi: np.ndarray, n0: int) -> None:
+        j0 = -(-n0 // decimate)
+        j1 = -(-(n0 + xi.shape[1]) // decimate)
+        rec = dev.advance(xi, every=decimate)
+        _store(out, rec, block, j0, j1)
+
+    run_blocks(noise, n_steps, work, threads=1, chunk_steps=chunk,
+               progress=progress and "reduced-gpu")  # fmt: skip
+    state = dev.final_state()
+    attrs = {
+        "engine": "reduced-gpu",
+        "model": model,
+        "stepper": stepper,
+        "seed": noise.seed,
+        "first_realization": noise.first_realization,
+        "amplitude": amplitude,
+        "duration": duration,
+        "decimate": int(decimate),
+        **params.as_dict(),
+        "device": dev.device,
+        "final_state": state.tolist() if nreal * state.shape[1] <= 4096 else None,
+    }
+    return Trajectory(time=np.arange(n_samples) * (params.dt * decimate), data=out, attrs=attrs)
+
+
+class GpuChunks:
+    """:class:`cipcore.engine.ChunkRunner` over :class:`DeviceReduced` (semi-implicit)."""
+
+    def __init__(self, model: BalanceModel, params: BalanceParams, n: int, amplitude: float):
+        self.dev = DeviceReduced(model.n_controllers, params, n, amplitude)
+        self.n_realizations = n
+        self.max_chunk = self.dev.max_chunk
+
+    @property
+    def step(self) -> int:
+        return self.dev.step
+
+    def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]:
+        rec = self.dev.advance(xi)
+        return {
+            "tip_position": rec[..., 0],
+            "tip_velocity": rec[..., 1],
+            "base_position": rec[..., 2],
+            "base_velocity": rec[..., 3],
+            "balancing_error": rec[..., 0] - rec[..., 2],
+            "balancing_error_velocity": rec[..., 1] - rec[..., 3],
+        }
+
+
+class ReducedGpuEngine:
+    """The reduced models with the trajectory kernel on a warp device (float64)."""
+
+    name = "reduced-gpu"
+    capabilities = Capabilities(
+        precision="float64",
+        device=declared_device(),
+        rigid_body=False,
+        linearize=False,
+        family="reference",
+        trajectory_tolerance=1e-12,
+    )
+    notes = "the reduced model as a warp kernel, one thread per realisation"
+
+    def unavailable(self) -> str | None:
+        return warp_unavailable(("warp",))
+
+    def runner(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        physical: Any = None,
+    ) -> GpuChunks:
+        return GpuChunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
+
+    def simulate(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 1,
+        seed: int = 0,
+        **options: Any,
+    ) -> Trajectory:
+        options.pop("physical", None)
+        return simulate_gpu(get_model(model).name, params, duration, n_realizations, seed,
+                            **options)  # fmt: skip
+
+    def lyapunov(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = 8,
+        seed: int = 0,
+        **options: Any,
+    ) -> LyapunovResult:
+        """lambda1 by the CPU kernel (module docstring): the same draws, float64."""
+        options.pop("physical", None)
+        return lyapunov(get_model(model).name, params, duration, n_realizations, seed, **options)
+
+
+ENGINE = ReducedGpuEngine()
