@@ -34,15 +34,18 @@ semi-implicit Euler with explicit forces) and 1.6e-7 for the coupled model,
 whatever m/M: the two rod constraints differ in softness (MuJoCo's solref
 time constant 2 ms against SAP's near-rigid regime; the tips of the coupled
 model stay 4e-12 m from the rod length in Drake, 3e-10 m in MuJoCo, at 1e-3 m
-amplitude).  The declared ``trajectory_tolerance`` is MuJoCo's 1e-2: the
+amplitude).  At m/M = 1e-7 (``--mass-ratios 1e-7``) the coupled distance to the
+reduced model is 6.89e-7 for Drake against 7.18e-7 for MuJoCo: the stiffer
+rod is the closer one.  The declared ``trajectory_tolerance`` is MuJoCo's 1e-2: the
 distance is the rigid body's m/M term, not the engine's precision.
 
-Throughput (``benchmarks/bench_engines.py``, 16 realisations x 1000 steps, one
-thread, on a shared 2-core machine): about 2-5 % of MuJoCo's (single 6.0e3
-against 1.2e5, coupled 1.8e3 against 4.6e4 realisation-steps/s); about 80 %
-of the time is Drake's own discrete step (``ExecuteForcedEvents``: about
-30 us single, 115 us coupled on an idle core, the rod's SAP solve being most
-of it), the rest the per-step Python calls.  No linearisation is offered: the
+Throughput (``python benchmarks/bench_engines.py --engines mujoco,drake
+--realizations 1,16,64 --threads 1``, coupled, 1000 steps, on a 2-core machine
+shared with other jobs, load about 10): 1.2e3-1.6e3 realisation-steps/s
+against MuJoCo's 3.1e4-7.1e4, a ratio of 0.02-0.04.  About 80 % of the time is
+Drake's own discrete step (``ExecuteForcedEvents``: about 30 us for the single
+and 115 us for the coupled model at load 2, the rod's SAP solve being most of
+it), the rest the per-step Python calls.  No linearisation is offered: the
 discrete SAP plant has no continuous-time qacc for a rigid rod.
 """
 
