@@ -23,6 +23,30 @@ numbers for any batch split.
 A SAP step that fails (Drake raises) is counted by :meth:`DrakeRollout.warnings`
 and the realisation's remaining states are set to NaN, which the drivers treat
 as divergence.
+
+Measured (Drake 1.51.1, MuJoCo 4.0.0, paper parameters, beta = 20.306, 1e-6 m,
+10 s, 4 realisations, seed 1; ``benchmarks/engine_distance_table.py``): the
+relative L2 distance of the balancing errors to the reduced model is
+2.967e-3 (single) and 2.892e-3 (coupled) at m/M = 1e-3 and 2.96e-5 / 2.89e-5
+at m/M = 1e-5, as MuJoCo's: it is the cart reaction (m/M) alpha e common to
+both rigid bodies.  Drake against MuJoCo: 1e-15 for the single model (the same
+semi-implicit Euler with explicit forces) and 1.6e-7 for the coupled model,
+whatever m/M: the two rod constraints differ in softness (MuJoCo's solref
+time constant 2 ms against SAP's near-rigid regime; the tips of the coupled
+model stay 4e-12 m from the rod length in Drake, 3e-10 m in MuJoCo, at 1e-3 m
+amplitude).  At m/M = 1e-7 (``--mass-ratios 1e-7``) the coupled distance to the
+reduced model is 6.89e-7 for Drake against 7.18e-7 for MuJoCo: the stiffer
+rod is the closer one.  The declared ``trajectory_tolerance`` is MuJoCo's 1e-2: the
+distance is the rigid body's m/M term, not the engine's precision.
+
+Throughput (``python benchmarks/bench_engines.py --engines mujoco,drake
+--realizations 1,16,64 --threads 1``, coupled, 1000 steps, on a 2-core machine
+shared with other jobs, load about 10): 1.2e3-1.6e3 realisation-steps/s
+against MuJoCo's 3.1e4-7.1e4, a ratio of 0.02-0.04.  About 80 % of the time is
+Drake's own discrete step (``ExecuteForcedEvents``: about 30 us for the single
+and 115 us for the coupled model at load 2, the rod's SAP solve being most of
+it), the rest the per-step Python calls.  No linearisation is offered: the
+discrete SAP plant has no continuous-time qacc for a rigid rod.
 """
 
 from __future__ import annotations
@@ -44,7 +68,8 @@ class DrakeRollout:
     model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
         physical parameter and of the state layout.
     n_realizations : number of realisations (one Drake ``Context`` each).
-    threads : ignored (pydrake steps hold the Python interpreter).
+    threads : ignored: ``ExecuteForcedEvents`` holds the GIL (two threads stepping two
+        plants took as long as one thread stepping both), so the engine runs one block.
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
@@ -118,5 +143,6 @@ ENGINE = RigidBodyEngine(
     ),
     backend=lambda: DrakeRollout,
     requires=("pydrake",),
+    max_threads=1,  # pydrake's discrete step holds the GIL: threads would only add plants
     notes="Drake MultibodyPlant, discrete SAP, rod as a distance constraint",
 )
