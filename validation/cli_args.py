@@ -76,6 +76,23 @@ def positive_int(text: str) -> int:
     return v
 
 
+def int_at_least(minimum: int):
+    """argparse type: an integer >= ``minimum``."""
+
+    def convert(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected an integer >= {minimum}, got {text!r}"
+            ) from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text!r}")
+        return v
+
+    return convert
+
+
 def nonnegative_int(text: str) -> int:
     """An integer >= 0 (argparse type)."""
     try:

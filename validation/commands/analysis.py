@@ -21,6 +21,7 @@ from ..cli_args import (
     dump,
     finite_float,
     grid,
+    int_at_least,
     params_from_args,
     positive_int,
 )
@@ -195,7 +196,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--target", type=finite_float, default=5e-4, help="lambda1 target (1/s)")
     p.add_argument(
-        "--gains", type=positive_int, default=7, help="gains evaluated over the range (count >= 2)"
+        "--gains",
+        type=int_at_least(2),
+        default=7,
+        help="gains evaluated over the range (count >= 2)",
     )
     add_json_arg(p)
     p.set_defaults(func=cmd_critical_gain)

@@ -17,6 +17,7 @@ from ..cli_args import (
     check_out_dir,
     check_out_file,
     check_work,
+    int_at_least,
     interrupt_signals,
     interrupted_status,
     nonnegative_int,
@@ -147,7 +148,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--realizations",
-        type=positive_int,
+        type=int_at_least(2),
         help="realisations per point (count >= 2; default: the study's)",
     )
     p.add_argument(
