@@ -70,9 +70,10 @@ def compile_note() -> str | None:
     spec = importlib.util.find_spec("reduced")
     if spec is None or not spec.submodule_search_locations:
         return None
-    where = [Path(p) / "__pycache__" for p in spec.submodule_search_locations]
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        where.append(Path(os.environ["NUMBA_CACHE_DIR"]))
+    if os.environ.get("NUMBA_CACHE_DIR"):  # numba then caches there only
+        where = [Path(os.environ["NUMBA_CACHE_DIR"])]
+    else:
+        where = [Path(p) / "__pycache__" for p in spec.submodule_search_locations]
     if any(any(d.rglob("*.nbi")) for d in where if d.is_dir()):
         return None
     return ("numba is compiling the reduced model's kernels (first run after install only: "
