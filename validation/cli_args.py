@@ -21,7 +21,7 @@ from typing import Any, NoReturn
 
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import PAPER, BalanceParams, ParameterError
-from cipcore.registry import engine_names
+from cipcore.registry import REFERENCE, engine_names
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 #: exit status after SIGINT / SIGTERM (128 + signal number, the shell's convention)
@@ -188,7 +188,7 @@ def add_force_arg(p: argparse.ArgumentParser) -> None:
                    "realisation-steps")  # fmt: skip
 
 
-def add_engine_arg(p: argparse.ArgumentParser, default: str | None = "reduced") -> None:
+def add_engine_arg(p: argparse.ArgumentParser, default: str | None = REFERENCE) -> None:
     """--engine NAME from :func:`cipcore.registry.engine_names`."""
     names = engine_names()
     p.add_argument("--engine", choices=names, default=default,

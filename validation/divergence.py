@@ -27,7 +27,7 @@ import numpy as np
 from cipcore.params import BalanceParams
 from cipcore.schema import Trajectory
 
-DIVERGED, LEFT_SMALL_ANGLE = "diverged", "left small-angle regime"
+DIVERGED, LEFT_SMALL_ANGLE = "diverged", "left the small-angle regime"
 
 
 @dataclass(frozen=True)

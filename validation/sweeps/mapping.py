@@ -9,7 +9,16 @@ from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import get_engine
 
 from ..profiles import PAPER_BETA
-from .study import REDUCED_KEYS, Study
+
+REDUCED_KEYS = ("beta", "alpha", "gamma", "nu", "tau", "dt")
+PHYSICAL_KEYS = (
+    "rod_length", "rod_length_ratio", "mass_ratio", "rod_mass", "bob_radius",
+    "solref_timeconst", "solref_dampratio", "solimp_width", "integrator",
+)  # fmt: skip
+RUN_KEYS = ("amplitude",)
+SETTINGS = REDUCED_KEYS + PHYSICAL_KEYS + RUN_KEYS
+#: settings whose values are words, not numbers
+WORD_SETTINGS = ("integrator",)
 
 #: initial balancing error (m) of a study that does not set ``amplitude``
 DEFAULT_AMPLITUDE = 1e-3
@@ -17,8 +26,11 @@ DEFAULT_AMPLITUDE = 1e-3
 DEFAULT_MASS_RATIO = 1e-3
 
 
-def point_params(study: Study, point: dict[str, Any]):
-    """(BalanceParams, CIPParams or None, amplitude) of one grid point.
+def point_params(study: Any, point: dict[str, Any]):
+    """(BalanceParams, CIPParams or None, amplitude) of one grid point of ``study``.
+
+    ``study`` is a :class:`validation.sweeps.study.Study` (its ``model``,
+    ``engine`` and ``fixed`` settings).
 
     The physical parameters (:class:`cip.model.CIPParams`) are built for an
     engine with ``capabilities.rigid_body``; beta defaults to the paper's gain

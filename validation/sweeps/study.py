@@ -26,16 +26,8 @@ from cipcore.registry import check_engine_name, get_engine
 
 from ..profiles import Profile
 from ..versions import package_versions
+from .mapping import SETTINGS, WORD_SETTINGS, point_params
 
-REDUCED_KEYS = ("beta", "alpha", "gamma", "nu", "tau", "dt")
-PHYSICAL_KEYS = (
-    "rod_length", "rod_length_ratio", "mass_ratio", "rod_mass", "bob_radius",
-    "solref_timeconst", "solref_dampratio", "solimp_width", "integrator",
-)  # fmt: skip
-RUN_KEYS = ("amplitude",)
-SETTINGS = REDUCED_KEYS + PHYSICAL_KEYS + RUN_KEYS
-#: settings whose values are words, not numbers
-WORD_SETTINGS = ("integrator",)
 METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
 #: metrics defined only for an engine with ``capabilities.rigid_body``
 RIGID_BODY_METRICS = ("max_angle", "agreement")
@@ -61,8 +53,6 @@ class Study:
     grid: dict[str, list] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        from .mapping import point_params
-
         get_model(self.model)
         check_engine_name(self.engine)
         rigid = get_engine(self.engine).capabilities.rigid_body
