@@ -139,3 +139,27 @@ def test_sigint_and_sigterm_keep_every_finished_stage_and_resume_completes(smoke
     assert results["checks"] == clean["checks"]
     assert results["paper"] == clean["paper"]
     assert proc.returncode == smoke_run[0]
+
+
+def test_divergence_of_the_stages_is_listed_per_run_and_point():
+    import xarray as xr
+
+    from validation.harness import _divergence
+
+    t = np.full((2, 2, 3), np.nan)
+    t[1, 0, 2] = 4.5  # l/L = 2, amplitude 1e-3, realisation 2 diverged at 4.5 s
+    ds = xr.Dataset(
+        {"divergence_time": (("rod_length_ratio", "amplitude", "realization"), t)},
+        coords={"rod_length_ratio": [0.5, 2.0], "amplitude": [1e-3, 0.1], "realization": [0, 1, 2]},
+    )
+    scan = [
+        {"model": "single", "amplitude": 1e-5, "small_angle": True, "fell": False,
+         "max_abs_angle": 1e-4},
+        {"model": "single", "amplitude": 0.3, "small_angle": False, "fell": True,
+         "max_abs_angle": 3.0},
+    ]  # fmt: skip
+    out = _divergence({"amplitude scan": ([], scan), "rod-length study": ([], [], ds)})
+    assert [d["stage"] for d in out] == ["amplitude scan", "rod-length study"]
+    assert "fell" in out[0]["summary"] and "0.3 m" in out[0]["run"]
+    assert out[1]["run"] == "rod_length_ratio=2.0, amplitude=0.001"
+    assert "realisations [2] of 3 diverged (first at t = 4.5 s)" == out[1]["summary"]

@@ -186,7 +186,7 @@ def test_two_studies_raced_into_one_directory_never_mix(tmp_path):
     results = {name: (p.wait(timeout=300), *p.communicate()) for name, p in procs.items()}
     winners = [n for n, (code, _, _) in results.items() if code == 0]
     assert len(winners) >= 1, results
-    for name, (code, _, err) in results.items():
+    for _name, (code, _, err) in results.items():
         if code != 0:
             assert code == 2, err
             lines = [ln for ln in err.splitlines() if ln.startswith("cip-validate: error:")]

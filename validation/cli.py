@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from cipcore.params import ParameterError
 
 from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
-from .commands import analysis, simulation, suite, sweeping
+from .commands import analysis, simulation, suite, sweeping, viewing
 
 __all__ = ["EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
 
@@ -44,6 +44,7 @@ def build_parser() -> CLIParser:
     simulation.register(sub)
     suite.register(sub)
     sweeping.register(sub)
+    viewing.register(sub)
     return parser
 
 

@@ -31,9 +31,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm.auto import tqdm
 
-from cipcore.params import ParameterError
+from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper, plots
 from .profiles import Profile
@@ -222,8 +223,6 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
     amplitude scan (whose large amplitudes leave the small angles on purpose)
     and the rod-length study (per grid point).
     """
-    import numpy as np
-
     from .divergence import pendulum_length, summary, trajectory_events
 
     out: list[dict] = []
@@ -231,8 +230,6 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
         for model, d in state["time-series agreement"][1].items():
             for side in ("full", "reduced"):
                 tr = d[side]
-                from cipcore.params import BalanceParams
-
                 p = BalanceParams(**{k: tr.attrs[k] for k in
                                      ("beta", "alpha", "gamma", "nu", "tau", "dt")})  # fmt: skip
                 ev = trajectory_events(tr, pendulum_length(p))
@@ -251,18 +248,18 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
     if "rod-length study" in state:
         ds = state["rod-length study"][2]
         if "divergence_time" in ds:
-            t = ds["divergence_time"].stack(point=[d for d in ds["divergence_time"].dims
-                                                   if d != "realization"])  # fmt: skip
-            for k in range(t.sizes["point"]):
-                row = t.isel(point=k)
-                times = row.values
+            t = ds["divergence_time"]
+            dims = [d for d in t.dims if d != "realization"]
+            for idx in np.ndindex(*(ds.sizes[d] for d in dims)):
+                times = t.isel(dict(zip(dims, idx, strict=True))).values
                 bad = np.flatnonzero(np.isfinite(times))
                 if bad.size:
-                    where = ", ".join(f"{d}={row[d].item():g}" for d in row["point"].
-                                      to_index().names)  # fmt: skip
+                    where = ", ".join(
+                        f"{d}={ds[d].values[i]}" for d, i in zip(dims, idx, strict=True)
+                    )
                     out.append({"stage": "rod-length study", "run": where,
-                                "summary": f"{bad.size} of {times.size} realisations diverged "
-                                f"(first at t = {np.nanmin(times):.4g} s)"})  # fmt: skip
+                                "summary": f"realisations {bad.tolist()} of {times.size} "
+                                f"diverged (first at t = {np.nanmin(times):.4g} s)"})  # fmt: skip
     return out
 
 
