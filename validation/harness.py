@@ -77,8 +77,8 @@ def compile_note() -> str | None:
         where = [Path(p) / "__pycache__" for p in spec.submodule_search_locations]
     if any(any(d.rglob("*.nbi")) for d in where if d.is_dir()):
         return None
-    return ("numba is compiling the reduced model's kernels (first run after install only: "
-            "a few minutes on 2 cores before the first stage moves)")  # fmt: skip
+    return ("numba is compiling the reduced model's kernels (first run after install only; "
+            "it adds to the first stage's time)")  # fmt: skip
 
 
 def _run_key(profile: Profile, figures: bool) -> str:
