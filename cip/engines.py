@@ -20,6 +20,7 @@ from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
 from cipcore.schema import Trajectory
 
+from .linearize import linearize
 from .lyapunov import lyapunov_full
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
@@ -51,7 +52,10 @@ class RigidBodyEngine:
 
     ``backend`` is a zero-argument callable returning the backend class (so that
     an engine whose package is absent can still be listed); ``requires`` names
-    the modules it needs, checked by :meth:`unavailable`.
+    the modules it needs, checked by :meth:`unavailable`; ``probe`` (optional)
+    returns a reason the engine cannot run here (e.g. no GPU); ``max_threads``
+    caps the realisation blocks run concurrently (1 for engines that batch all
+    realisations in one call).
     """
 
     name: str
@@ -59,6 +63,8 @@ class RigidBodyEngine:
     backend: Any
     requires: tuple[str, ...] = ()
     probe: Any = None
+    max_threads: int | None = None
+    linearizer: Any = None
     notes: str = ""
     _why: str | None = field(default=None, init=False, repr=False)
 
@@ -102,6 +108,8 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Any,
     ) -> Trajectory:
+        if self.max_threads is not None:
+            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         return simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
             backend=self._backend(), engine_name=self.name, **options,
@@ -116,10 +124,19 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Any,
     ) -> LyapunovResult:
+        if self.max_threads is not None:
+            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         return lyapunov_full(
             get_model(model).name, params, duration, n_realizations, seed,
             backend=self._backend(), **options,
         )  # fmt: skip
+
+    def linearize(self, model: BalanceModel | str, physical: CIPParams | None = None):
+        """The engine's linearisation about upright beside the reduced model's
+        (:class:`cip.linearize.Linearization`), or None where it has none."""
+        if self.linearizer is None:
+            return None
+        return self.linearizer(get_model(model).name, physical)
 
 
 MUJOCO = RigidBodyEngine(
@@ -134,5 +151,6 @@ MUJOCO = RigidBodyEngine(
         trajectory_tolerance=1e-2,
     ),
     backend=lambda: MujocoRollout,
+    linearizer=linearize,
     notes="MuJoCo C engine, mujoco.rollout across threads",
 )

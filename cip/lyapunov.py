@@ -7,8 +7,9 @@ starts at a random deviation of size ``epsilon``; after every chunk of
 tau (= the renormalisation interval) the deviation, i.e. (cart positions
 relative to their mean, angles, all velocities) *and* the delay buffer of
 balancing errors, is scaled back to norm ``epsilon`` and log(norm/epsilon) is
-accumulated.  The common translation of the carts is neutral (DESIGN.md
-section 3) and is removed at each renormalisation.
+accumulated.  The common translation of the carts is neutral (cart and tip may translate
+together freely; left in, it grows until e is rounding noise and the estimate
+creeps to 0 like 1/T) and is removed at each renormalisation.
 
 Norm (all terms in m or m/s): sqrt(sum (x_Mi - mean x_M)^2 + (L theta_i)^2 +
 v_Mi^2 + (L theta_i')^2 + sum over the buffer of e^2 + e'^2).
@@ -24,6 +25,7 @@ from cipcore.noise import GainNoise
 from cipcore.params import BalanceParams, ParameterError, check_count, whole_steps
 from cipcore.results import LyapunovResult, check_transient
 from cipcore.schema import check_duration
+from cipcore.seeds import tangent_rng
 from cipcore.stats import mean_ci95
 
 from .model import CIPParams
@@ -133,7 +135,7 @@ def _start(
         model, params, physical, block.stop - block.start, 0.0, threads=1, backend=backend
     )
     for j, k in enumerate(range(block.start, block.stop)):
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(k, 1)))
+        rng = tangent_rng(seed, k)
         r.state[j, r.i_th] = rng.standard_normal(r.nc) / physical.pendulum_length
         r.e_hist[j] = rng.standard_normal((r.d, r.nc))
     if r.nc == 2:

@@ -2,7 +2,7 @@
 
 Paper section 2: xi_i are mutually independent standard Gaussian white noises.
 In a time-stepping integrator with step h the white noise is held constant over
-each step and scaled by 1/sqrt(h) (Euler–Maruyama, DESIGN.md section 2)::
+each step and scaled by 1/sqrt(h) (Euler–Maruyama)::
 
     R_{i,k} = 1 + nu * xi_{i,k} / sqrt(h),      xi_{i,k} ~ N(0, 1) i.i.d.
 

@@ -118,7 +118,7 @@ class BalanceParams:
 
     @property
     def noise_scale(self) -> float:
-        """Euler–Maruyama factor nu / sqrt(dt) of the held random gain (DESIGN.md section 2)."""
+        """Euler–Maruyama factor nu / sqrt(dt) of the held random gain (:mod:`cipcore.noise`)."""
         return self.nu / math.sqrt(self.dt)
 
     def with_(self, **changes: float) -> BalanceParams:

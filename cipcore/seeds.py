@@ -8,6 +8,11 @@ from a key that no realisation can reach: its first element is
 ``PURPOSE_BASE + purpose`` with ``PURPOSE_BASE = 2**32``, above any realisation
 index (realisation counts are capped at 2**32 by :func:`check_realization`).
 
+The initial tangent vector of realisation ``r``'s Lyapunov estimate (both
+engines) is ``SeedSequence(seed, spawn_key=(r, 1))``: a child of the
+realisation's own key, so it too is reproducible for any batch split and
+distinct from every noise stream.
+
 Adding a purpose is one line in :data:`PURPOSES`.
 """
 
@@ -22,9 +27,8 @@ PURPOSE_BASE = 2**32
 #: Random uses other than the noise of a realisation, each with its own stream.
 PURPOSES: dict[str, int] = {
     "bootstrap": 1,
-    "tangent": 2,
-    "bot": 3,
-    "selftest": 4,
+    "bot": 2,
+    "selftest": 3,
 }
 
 
@@ -38,6 +42,12 @@ def check_realization(index: int) -> int:
 def noise_sequence(seed: int, realization: int) -> np.random.SeedSequence:
     """The feedback-gain noise stream of one realisation."""
     return np.random.SeedSequence(seed, spawn_key=(check_realization(realization),))
+
+
+def tangent_rng(seed: int, realization: int) -> np.random.Generator:
+    """The stream of realisation ``realization``'s initial tangent vector (lambda1)."""
+    ss = np.random.SeedSequence(seed, spawn_key=(check_realization(realization), 1))
+    return np.random.Generator(np.random.PCG64(ss))
 
 
 def purpose_rng(seed: int, purpose: str, *key: int) -> np.random.Generator:

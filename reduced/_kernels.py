@@ -132,17 +132,18 @@ def advance_errors(
 ) -> int:
     """Advance the balancing errors (Lyapunov mode) with Benettin renormalisation.
 
-    Integrates the error coordinates only (eq. bormann04 / sss08:TMc),
+        Integrates the error coordinates only (eq. bormann04 / sss08:TMc),
 
-        e_i'' + gamma e_i' - (alpha / C) sum_j e_j + beta R_i(t) e_i(t - tau) = 0,
+            e_i'' + gamma e_i' - (alpha / C) sum_j e_j + beta R_i(t) e_i(t - tau) = 0,
 
-    which removes the neutral common drift of tip and bases (DESIGN.md section 3).
-    Every ``renorm_every`` steps the whole state, (e_i, e_i') and the delay
-    history, is divided by its Euclidean norm; after ``transient_steps`` the
-    log of each norm is added to ``logsum[r]``.  The same discrete map as
-    :func:`advance_positions` applied to e = q_T - q_M (the model is linear).
+        which removes the neutral common drift of tip and bases (a direction in which
+    the absolute positions grow freely and would swamp e with rounding noise).
+        Every ``renorm_every`` steps the whole state, (e_i, e_i') and the delay
+        history, is divided by its Euclidean norm; after ``transient_steps`` the
+        log of each norm is added to ``logsum[r]``.  The same discrete map as
+        :func:`advance_positions` applied to e = q_T - q_M (the model is linear).
 
-    y : (nb, 2C) [e_1, e_1', e_2, e_2', ...];  hist : (nb, C, d).
+        y : (nb, 2C) [e_1, e_1', e_2, e_2', ...];  hist : (nb, C, d).
     """
     nb, n, nc = xi.shape
     d = hist.shape[2]

@@ -18,7 +18,7 @@ from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
 from cipcore.schema import Trajectory, check_amplitude
 
-from . import _kernels
+from ._kernels import advance_positions
 from .lyapunov import lyapunov
 from .simulate import simulate
 
@@ -45,7 +45,7 @@ class ReducedChunks:
     def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]:
         p, n = self.params, xi.shape[1]
         rec = np.empty((xi.shape[0], n, xi.shape[2], 4))
-        _kernels.advance_positions(
+        advance_positions(
             np.ascontiguousarray(xi, dtype=float), self.state, self.hist, self.step % self.d,
             p.alpha, p.beta, p.gamma, p.noise_scale, p.dt, True, self.step, 1, rec,
         )  # fmt: skip

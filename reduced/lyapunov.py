@@ -6,7 +6,7 @@ Benettin's method on the *error* coordinates (e_i, e_i') together with their
 delay history: every ``renorm_interval`` the whole state (including the d
 stored past errors) is renormalised to unit Euclidean norm and the log of the
 norm is accumulated.  Integrating the errors, not absolute positions, avoids
-the neutral common drift of tip and bases (DESIGN.md section 3), which would
+the neutral common drift of tip and bases (they may translate together freely), which would
 otherwise make the estimate creep to 0 like 1/T.
 
 Each realisation gives one exponent; the result is their mean with a
@@ -26,9 +26,10 @@ from cipcore.noise import GainNoise, make_noise
 from cipcore.params import STEPPERS, BalanceParams, ParameterError, check_choice, whole_steps
 from cipcore.results import LyapunovResult, check_transient
 from cipcore.schema import check_duration
+from cipcore.seeds import purpose_rng, tangent_rng
 from cipcore.stats import mean_ci95
 
-from . import _kernels
+from ._kernels import advance_errors
 from .simulate import n_controllers
 
 
@@ -80,16 +81,14 @@ def lyapunov(
     y = np.empty((nreal, 2 * nc))
     hist = np.empty((nreal, nc, d))
     for r in range(nreal):
-        rng = np.random.default_rng(
-            np.random.SeedSequence(noise.seed, spawn_key=(noise.first_realization + r, 1))
-        )
+        rng = tangent_rng(noise.seed, noise.first_realization + r)
         y[r] = rng.standard_normal(2 * nc)
         hist[r] = rng.standard_normal((nc, d))
     logsum = np.zeros(nreal)
     semi = stepper == "semi-implicit"
 
     def work(block: slice, xi: np.ndarray, n0: int) -> None:
-        _kernels.advance_errors(
+        advance_errors(
             xi, y[block], hist[block], n0 % d, params.alpha, params.beta, params.gamma,
             params.noise_scale, params.dt, semi, n0, renorm_steps, transient_steps,
             logsum[block],
@@ -190,7 +189,7 @@ def critical_gain(
             f"lambda1 does not cross target {target:g} in beta_range [{lo}, {hi}] "
             f"(lambda1 from {mean.min():.3g} to {mean.max():.3g} 1/s); widen beta_range"
         )
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(2,)))
+    rng = purpose_rng(seed, "bootstrap")
     boots = []
     for _ in range(n_bootstrap):
         idx = rng.integers(0, per_arr.shape[1], per_arr.shape[1])

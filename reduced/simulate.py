@@ -31,7 +31,7 @@ from cipcore.schema import (
     plan_recording,
 )
 
-from . import _kernels
+from ._kernels import advance_positions
 
 
 def n_controllers(model: str) -> int:
@@ -101,7 +101,7 @@ def simulate(
         j1 = -(-(n0 + n) // decimate)
         rec = np.empty((xi.shape[0], j1 - j0, nc, 4))
         # the ring-buffer slot of step n0 - d is n0 mod d in every realisation
-        _kernels.advance_positions(
+        advance_positions(
             xi, state[block], hist[block], n0 % d, params.alpha, params.beta,
             params.gamma, params.noise_scale, params.dt, semi, n0, decimate, rec,
         )  # fmt: skip

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 from cipcore.params import ParameterError
 
 from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
+from .cmd_engines import add_engines_command
 from .commands import analysis, simulation, suite, sweeping, viewing
 
 __all__ = ["EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
@@ -45,6 +46,7 @@ def build_parser() -> CLIParser:
     suite.register(sub)
     sweeping.register(sub)
     viewing.register(sub)
+    add_engines_command(sub)
     return parser
 
 

@@ -1,0 +1,65 @@
+"""``cip-validate engines``: the cross-engine table (:mod:`validation.engines`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from cipcore.registry import engine_names
+
+from .engines import ENGINE_PROFILES, compare_engines, parse_engines, write_engine_reports
+
+EXIT_OK, EXIT_FAIL = 0, 1
+
+
+def cmd_engines(a: argparse.Namespace) -> int:
+    names = parse_engines(a.engines)
+    if a.threads is not None and a.threads < 1:
+        from cipcore.params import ParameterError
+
+        raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
+    out = Path(a.out)
+    say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
+    results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    write_engine_reports(results, out, figures=not a.no_figures)
+    if a.json:
+        from .report import jsonable
+
+        print(json.dumps(jsonable(results)))
+    else:
+        for r in results["engines"]:
+            if r["status"] == "skipped":
+                print(f"{r['engine']:12s} skipped: {r['reason']}")
+                continue
+            tp = r["throughput"]
+            ratio = tp.get("ratio_to_mujoco")
+            print(
+                f"{r['engine']:12s} {r['status']:12s} distance single "
+                f"{r['trajectory_distance']['single']:.3g} coupled "
+                f"{r['trajectory_distance']['coupled']:.3g}  "
+                f"{tp['realization_steps_per_s']:.3g} steps/s"
+                + (f" ({ratio:.3g} x MuJoCo CPU)" if ratio is not None else "")
+            )
+        print(f"report: {out / 'report.md'}")
+    return EXIT_OK if results["status"] != "fail" else EXIT_FAIL
+
+
+def add_engines_command(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "engines",
+        help="validate every registered engine against the reduced model, one table",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    registered = ", ".join(engine_names())
+    p.add_argument("--engines", metavar="A,B,...",
+                   help=f"engines to validate (default: all registered: {registered})")  # fmt: skip
+    p.add_argument("--profile", choices=tuple(ENGINE_PROFILES), default="quick",
+                   help="sizes of the checks")  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="root seed of every noise draw")
+    p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
+    p.add_argument("--out", default="cip-engines-out", help="output directory")
+    p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
+    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.set_defaults(func=cmd_engines)
