@@ -76,6 +76,13 @@ CASES = [
     ("run --baseline {d}/none.json --out {d}/o", ["--baseline", "no such file"]),
     ("run --baseline {file} --out {d}/o", ["--baseline", "not JSON"]),
     ("baseline --from {d}/none.json --out {d}/b.json", ["--from", "no such file"]),
+    ("engines --engines reduced,bullet", ["engine must be one of", "bullet"]),
+    ("engines --threads 0", ["threads", ">= 1"]),
+    ("engines --engines reduced --out {file}/x", ["--out"]),
+    ("render --beta 20 --out {d}/run.avi", ["--out", ".gif"]),
+    ("render --beta 20 --fps 0 --out {d}/run.gif", ["--fps", "> 0"]),
+    ("render --beta 20 --realization -1 --out {d}/run.gif", ["--realization", ">= 0"]),
+    ("render --beta 20 --out {file}/run.gif", ["--out", "does not exist"]),
     ("nosuchcommand", ["invalid choice"]),
 ]
 
