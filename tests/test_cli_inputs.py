@@ -24,7 +24,8 @@ beta = [20.0, 21.0]
 # (argv with {file} = a regular file, {d} = a fresh directory, {bad} = the bad study; words
 # that the one-line message must contain)
 CASES = [
-    ("simulate --beta 20 --out {file}/run.npz", ["--out", "does not exist"]),
+    ("simulate --beta 20 --out {file}/run.npz", ["--out", "is not a directory"]),
+    ("simulate --beta 20 --out {d}/missing/run.npz", ["--out", "does not exist"]),
     ("simulate --beta 20 --out {d}/run.txt", ["--out", ".npz"]),
     ("simulate --beta 20 --out {d}", ["--out", ".npz"]),
     ("sweep --engine reduced --grid beta=20,21 --metrics rms --out {file}/sw", ["--out"]),
@@ -82,7 +83,7 @@ CASES = [
     ("render --beta 20 --out {d}/run.avi", ["--out", ".gif"]),
     ("render --beta 20 --fps 0 --out {d}/run.gif", ["--fps", "> 0"]),
     ("render --beta 20 --realization -1 --out {d}/run.gif", ["--realization", ">= 0"]),
-    ("render --beta 20 --out {file}/run.gif", ["--out", "does not exist"]),
+    ("render --beta 20 --out {file}/run.gif", ["--out", "is not a directory"]),
     ("nosuchcommand", ["invalid choice"]),
 ]
 

@@ -267,9 +267,8 @@ def check_out_file(option: str, path: str | Path, suffixes: tuple[str, ...] = ()
         raise ParameterError(f"{option}: {str(path)!r} is a directory, expected a file")
     parent = p.parent
     if not parent.is_dir():
-        raise ParameterError(
-            f"{option}: cannot write {str(path)!r}: directory {str(parent)!r} does not exist"
-        )
+        why = "is not a directory" if parent.exists() else "does not exist"
+        raise ParameterError(f"{option}: cannot write {str(path)!r}: {str(parent)!r} {why}")
     why = _probe(parent)
     if why is not None:
         raise ParameterError(f"{option}: cannot write in {str(parent)!r} ({why})")
