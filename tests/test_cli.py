@@ -65,3 +65,28 @@ def test_bad_input_is_one_line_exit_2(capsys, argv, name):
     assert code == 2
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert len(lines) == 1 and name in lines[0] and "Traceback" not in err
+
+
+def test_simulate_reports_divergence_and_keeps_the_data(capsys, tmp_path):
+    """beta = 2 is far below the stability threshold: every realisation's balancing error
+    passes |e| > L = g/alpha within 20 s; simulate says which, when and how far, and the
+    saved series runs to the end."""
+    out_file = tmp_path / "div.npz"
+    code, out, _ = run(
+        capsys, "simulate", "--beta", "2", "--duration", "20", "--realizations", "2",
+        "--out", str(out_file), "--json",
+    )  # fmt: skip
+    assert code == 0
+    d = json.loads(out)
+    assert [e["realization"] for e in d["divergence"]] == [0, 1]
+    for e in d["divergence"]:
+        assert e["kind"] == "diverged" and 0 < e["time"] < 20 and e["extent"] > 0.446
+    from reduced import Trajectory
+
+    tr = Trajectory.load_npz(out_file)
+    assert tr["balancing_error"].shape == (2, 20000, 1)
+    code, out, _ = run(
+        capsys, "simulate", "--beta", "20.3", "--duration", "2", "--realizations", "2",
+        "--amplitude", "1e-4", "--out", str(out_file), "--json",
+    )  # fmt: skip
+    assert code == 0 and json.loads(out)["divergence"] == []

@@ -76,3 +76,90 @@ def test_paired_equivalence_rule():
     base = rng.normal(0, 1, 40)
     assert paired_equivalence(base + 1e-3 * rng.normal(size=40), base)[0] == PASS
     assert paired_equivalence(base + 2.0, base)[0] == FAIL
+
+
+def _start_run(out, *extra):
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "validation.cli", "run", "--profile", "smoke", "--out", str(out),
+           *extra]  # fmt: skip
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _stages_done(out) -> list[str]:
+    path = out / "results.json"
+    return json.loads(path.read_text())["stages_done"] if path.is_file() else []
+
+
+def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]]:
+    """Send ``sig`` once ``n_stages`` stages are on disk; (exit status, stderr, stages)."""
+    import time
+
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and len(_stages_done(out)) < n_stages:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run finished before it could be interrupted"
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=300)
+    return proc.returncode, err, _stages_done(out)
+
+
+def test_sigint_and_sigterm_keep_every_finished_stage_and_resume_completes(smoke_run, tmp_path):
+    import signal
+
+    from validation.harness import STAGES
+
+    out = tmp_path / "interrupted"
+    code, err, kept = _interrupt_after(_start_run(out), out, 2, signal.SIGINT)
+    assert code == 130, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("cip-validate: interrupted by SIGINT: kept ") and "--resume" in last
+    assert len(kept) >= 2 and kept == list(STAGES[: len(kept)])
+    assert f"kept {len(kept)} of {len(STAGES)} stages" in last
+    partial = json.loads((out / "results.json").read_text())
+    assert partial["partial"] is True and partial["checks"]
+
+    code, err, kept2 = _interrupt_after(
+        _start_run(out, "--resume"), out, len(kept) + 1, signal.SIGTERM
+    )
+    assert code == 143, err
+    assert "cip-validate: interrupted by SIGTERM: kept " in err.strip().splitlines()[-1]
+    assert len(kept2) > len(kept) and kept2[: len(kept)] == kept
+
+    proc = _start_run(out, "--resume")
+    _, err = proc.communicate(timeout=600)
+    results = json.loads((out / "results.json").read_text())
+    assert results["partial"] is False and results["stages_done"] == list(STAGES)
+    assert results["stages_reused"] == kept2
+    assert "reused from the last run" in err
+    # the same numbers as the uninterrupted run
+    _, clean_out = smoke_run
+    clean = json.loads((clean_out / "results.json").read_text())
+    assert results["checks"] == clean["checks"]
+    assert results["paper"] == clean["paper"]
+    assert proc.returncode == smoke_run[0]
+
+
+def test_divergence_of_the_stages_is_listed_per_run_and_point():
+    import xarray as xr
+
+    from validation.harness import _divergence
+
+    t = np.full((2, 2, 3), np.nan)
+    t[1, 0, 2] = 4.5  # l/L = 2, amplitude 1e-3, realisation 2 diverged at 4.5 s
+    ds = xr.Dataset(
+        {"divergence_time": (("rod_length_ratio", "amplitude", "realization"), t)},
+        coords={"rod_length_ratio": [0.5, 2.0], "amplitude": [1e-3, 0.1], "realization": [0, 1, 2]},
+    )
+    scan = [
+        {"model": "single", "amplitude": 1e-5, "small_angle": True, "fell": False,
+         "max_abs_angle": 1e-4},
+        {"model": "single", "amplitude": 0.3, "small_angle": False, "fell": True,
+         "max_abs_angle": 3.0},
+    ]  # fmt: skip
+    out = _divergence({"amplitude scan": ([], scan), "rod-length study": ([], [], ds)})
+    assert [d["stage"] for d in out] == ["amplitude scan", "rod-length study"]
+    assert "fell" in out[0]["summary"] and "0.3 m" in out[0]["run"]
+    assert out[1]["run"] == "rod_length_ratio=2.0, amplitude=0.001"
+    assert "realisations [2] of 3 diverged (first at t = 4.5 s)" == out[1]["summary"]

@@ -150,3 +150,102 @@ def test_string_parameters_and_report(tmp_path):
     run_sweep(study, tmp_path / "s", workers=1)
     report = write_sweep_report(study, tmp_path / "s").read_text()
     assert "| RK4 |" in report and (tmp_path / "s" / "sweep_agreement.png").exists()
+
+
+RACE_STUDY = """
+[study]
+name = "{name}"
+model = "coupled"
+engine = "reduced"
+metrics = ["rms", "lambda1"]
+realizations = 8
+duration = {duration}
+seed = 11
+[grid]
+beta = [20.0, 21.0, 22.0, 23.0]
+"""
+
+
+def test_two_studies_raced_into_one_directory_never_mix(tmp_path):
+    """Two studies differing only in duration, started together into one --out: one
+    wins, the other fails with one line (directory in use, naming the holder, or holding
+    another study), and the winner's dataset equals a clean run of its own study."""
+    files = {}
+    for name, duration in (("short", 20.0), ("long", 30.0)):
+        files[name] = tmp_path / f"{name}.toml"
+        files[name].write_text(RACE_STUDY.format(name=name, duration=duration))
+    out = tmp_path / "shared"
+    procs = {
+        name: subprocess.Popen(
+            [sys.executable, "-m", "validation.cli", "sweep", str(f), "--out", str(out),
+             "--workers", "1"],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        for name, f in files.items()
+    }  # fmt: skip
+    results = {name: (p.wait(timeout=300), *p.communicate()) for name, p in procs.items()}
+    winners = [n for n, (code, _, _) in results.items() if code == 0]
+    assert len(winners) >= 1, results
+    for _name, (code, _, err) in results.items():
+        if code != 0:
+            assert code == 2, err
+            lines = [ln for ln in err.splitlines() if ln.startswith("cip-validate: error:")]
+            assert len(lines) == 1 and "Traceback" not in err, err
+            assert "in use by another sweep (pid" in lines[0] or "holds another study" in lines[0]
+    # a loser that found the directory free after the winner finished is refused too, so
+    # exactly one study's files are in the directory
+    assert len(winners) == 1, results
+    win = Study.from_toml(files[winners[0]])
+    names = {p.name.split("-")[0] for p in (out / "points").glob("*.json")}
+    assert names == {win.fingerprint()}
+    assert json.loads((out / "study.json").read_text())["name"] == winners[0]
+    clean = run_sweep(win, tmp_path / "clean", workers=1)
+    xr.testing.assert_identical(open_ds(out / "sweep.nc"), open_ds(clean.dataset_path))
+    assert not list(out.glob("*.tmp*")) and not list((out / "points").glob("*.tmp*"))
+
+
+def test_locked_directory_fails_at_once_naming_the_holder(tmp_path):
+    from validation.sweeps import DirectoryLock
+
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0, 21.0]})
+    where = tmp_path / "locked"
+    where.mkdir()
+    with DirectoryLock(where):
+        t = time.perf_counter()
+        with pytest.raises(
+            ParameterError, match=f"in use by another sweep \\(pid {os.getpid()} on"
+        ):
+            run_sweep(study, where, workers=1)
+        assert time.perf_counter() - t < 5
+    rep = run_sweep(study, where, workers=1)  # released: the same study runs
+    assert rep.computed == 2
+    rep = run_sweep(study, where, workers=1)  # the same study again: reuses every point
+    assert (rep.computed, rep.reused) == (0, 2)
+
+
+def test_point_files_are_keyed_by_the_study_not_only_the_point(tmp_path):
+    a = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0]})
+    b = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0]}, duration=3.0)
+    from validation.sweeps import Store
+
+    assert (
+        Store(tmp_path / "a", a).path({"beta": 20.0}).name
+        != Store(tmp_path / "b", b).path({"beta": 20.0}).name
+    )
+    run_sweep(a, tmp_path / "c", workers=1)
+    with pytest.raises(ParameterError, match="holds another study"):
+        run_sweep(b, tmp_path / "c", workers=1)
+
+
+def test_divergence_is_recorded_per_point(tmp_path):
+    """beta = 2 is far below the stability threshold: the reduced model's balancing
+    error leaves |e| < L within seconds; the point records when, beta = 21 does not."""
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [2.0, 21.0]},
+                        duration=20.0, fixed={})  # fmt: skip
+    rep = run_sweep(study, tmp_path / "div", workers=1)
+    ds = open_ds(rep.dataset_path)
+    assert list(ds["diverged"].values) == [1, 0]
+    t = ds["divergence_time"].sel(beta=2.0).values
+    assert np.all((t > 0) & (t < 20.0))
+    assert np.all(np.isnan(ds["divergence_time"].sel(beta=21.0).values))
+    assert [d["point"] for d in rep.diverged] == [{"beta": 2.0}]

@@ -18,11 +18,8 @@ from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 
 from . import metrics
-from .profiles import PAPER_BETA, Profile
+from .profiles import PAPER_BETA, TRAJECTORY_WINDOW, Profile
 from .stats import FAIL, PASS, Check, ci_overlap, paired_equivalence, se_agreement, worst
-
-#: Window (s) of the trajectory comparison, issue 3's acceptance: < 1 % over 10 s.
-TRAJECTORY_WINDOW = 10.0
 
 SERIES_FIELDS = ("balancing_error", "balancing_error_velocity", "tip_velocity", "base_velocity")
 

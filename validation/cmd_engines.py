@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from cipcore.registry import engine_names
 
+from .cli_args import check_out_dir
 from .engines import ENGINE_PROFILES, compare_engines, parse_engines, write_engine_reports
 
 EXIT_OK, EXIT_FAIL = 0, 1
@@ -20,7 +20,7 @@ def cmd_engines(a: argparse.Namespace) -> int:
         from cipcore.params import ParameterError
 
         raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
-    out = Path(a.out)
+    out = check_out_dir("--out", a.out)  # checked before any work
     say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
     results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
     write_engine_reports(results, out, figures=not a.no_figures)

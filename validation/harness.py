@@ -9,103 +9,286 @@ whatever the number of workers):
 3. an amplitude scan: where the agreement breaks down;
 4. paper reproduction with the reduced model: beta*, RMS, velocity density
    ratio, STCC at t = 36, tau_hat densities, spectral slopes, laminar phases;
-5. figures redoing the paper's (from both models where it makes sense).
+5. the rod-length study;
+6. figures redoing the paper's (from both models where it makes sense).
+
+Nothing finished is lost: each stage's outputs are written to
+``DIR/stages/`` as soon as it finishes, and ``DIR/results.json`` is rewritten
+atomically after every stage with ``"partial": true`` until the last.
+``resume=True`` reuses the finished stages of a run with the same profile,
+figures setting and package versions (the numbers are the same as a run
+without interruption: every stage has its own seeds).
 """
 
 from __future__ import annotations
 
-import platform
+import hashlib
+import json
+import os
+import pickle
 import time
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
+from cipcore.params import BalanceParams, ParameterError
+
 from . import agreement, paper, plots
 from .profiles import Profile
+from .report import write_json
 from .stats import FAIL, INCONCLUSIVE, PASS
+from .versions import package_versions
+
+__all__ = ["STAGES", "RunInterrupted", "compile_note", "package_versions", "run_validation"]
+
+STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan", "critical gains",
+          "lambda1 curve", "RMS and velocity", "STCC and spectra", "rod-length study",
+          "figures")  # fmt: skip
+STAGE_DIR = "stages"
 
 
-def package_versions() -> dict[str, str]:
-    """Versions of Python, the numerical stack, MuJoCo and cipval itself."""
-    from importlib.metadata import PackageNotFoundError, version
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT / SIGTERM; ``kept`` names the stages saved in ``out_dir``."""
 
-    import matplotlib
-    import mujoco
-    import numba
-    import scipy
+    def __init__(self, kept: list[str], out_dir: Path) -> None:
+        super().__init__(f"kept {len(kept)} of {len(STAGES)} stages")
+        self.kept = kept
+        self.out_dir = out_dir
 
-    try:
-        cipval = version("cipval")
-    except PackageNotFoundError:
-        cipval = "not installed"
-    return {"python": platform.python_version(), "numpy": np.__version__,
-            "scipy": scipy.__version__, "numba": numba.__version__, "mujoco": mujoco.__version__,
-            "matplotlib": matplotlib.__version__, "cipval": cipval}  # fmt: skip
+
+def compile_note() -> str | None:
+    """A line to print when numba has no compiled kernels cached for the reduced model yet.
+
+    numba caches compiled kernels (``*.nbi`` index files) in ``__pycache__``
+    beside their modules, or under ``NUMBA_CACHE_DIR``; without them the first
+    stage compiles (minutes on two cores).
+    """
+    import importlib.util
+
+    spec = importlib.util.find_spec("reduced")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    if os.environ.get("NUMBA_CACHE_DIR"):  # numba then caches there only
+        where = [Path(os.environ["NUMBA_CACHE_DIR"])]
+    else:
+        where = [Path(p) / "__pycache__" for p in spec.submodule_search_locations]
+    if any(any(d.rglob("*.nbi")) for d in where if d.is_dir()):
+        return None
+    return ("numba is compiling the reduced model's kernels (first run after install only; "
+            "it adds to the first stage's time)")  # fmt: skip
+
+
+def _run_key(profile: Profile, figures: bool) -> str:
+    key = {"profile": profile.as_dict(), "figures": figures, "versions": package_versions()}
+    return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class _Stages:
+    """``DIR/stages/``: one pickle per finished stage and a manifest naming the run."""
+
+    def __init__(self, out_dir: Path, key: str, resume: bool) -> None:
+        self.dir = out_dir / STAGE_DIR
+        self.manifest = self.dir / "manifest.json"
+        self.key = key
+        old = json.loads(self.manifest.read_text()) if self.manifest.is_file() else None
+        if resume and old is not None and old.get("key") != key:
+            raise ParameterError(
+                f"--resume: {out_dir} holds stages of another profile, figures setting or "
+                "package versions; rerun without --resume (or use another --out)"
+            )
+        self.dir.mkdir(parents=True, exist_ok=True)
+        if not resume or old is None:
+            for f in self.dir.glob("*.pkl"):
+                f.unlink()
+            _atomic(self.manifest, json.dumps({"key": key}).encode())
+
+    def _path(self, name: str) -> Path:
+        return self.dir / f"{STAGES.index(name)}-{name.replace(' ', '_')}.pkl"
+
+    def load(self, name: str) -> Any:
+        p = self._path(name)
+        if not p.is_file():
+            return None
+        try:
+            return pickle.loads(p.read_bytes())
+        except Exception:  # a damaged file: recompute the stage
+            return None
+
+    def save(self, name: str, value: Any) -> None:
+        _atomic(self._path(name), pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
 
 
 def run_validation(
     profile: Profile, out_dir: Path, workers: int | None = None, progress: bool = True,
-    figures: bool = True,
+    figures: bool = True, resume: bool = False,
+    on_stage: Callable[[str, float, bool], None] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """Run every stage; returns the results dictionary written to results.json."""
+    """Run every stage; returns the results dictionary written to results.json.
+
+    After each stage, ``DIR/results.json`` holds everything finished so far
+    (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
+    On KeyboardInterrupt (SIGINT, or SIGTERM turned into one by the CLI) raises
+    :class:`RunInterrupted` naming the stages kept.
+    """
+    out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    stages = ["lambda1 agreement", "time-series agreement", "amplitude scan",
-              "critical gains", "lambda1 curve", "RMS and velocity", "STCC and spectra",
-              "rod-length study", "figures"]  # fmt: skip
-    bar = tqdm(stages, desc="cip-validate", disable=not progress, unit="stage")
+    store = _Stages(out_dir, _run_key(profile, figures), resume)
+    bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
-    checks, paper_rows = [], []
+    done: list[str] = []
+    reused: list[str] = []
+    state: dict[str, Any] = {}
 
-    @contextmanager
-    def stage(name: str):
-        bar.set_postfix_str(name)
-        t = time.perf_counter()
-        yield
-        timings[name] = round(time.perf_counter() - t, 2)
-        bar.update(1)
+    def compute(name: str) -> Any:
+        if name == "lambda1 agreement":
+            return agreement.lyapunov_checks(profile, workers)
+        if name == "time-series agreement":
+            return agreement.series_checks(profile, workers)
+        if name == "amplitude scan":
+            return agreement.amplitude_scan(profile, workers)
+        if name == "critical gains":
+            return paper.critical_gains(profile, workers)
+        if name == "lambda1 curve":
+            return paper.lyapunov_curve(profile, workers)
+        if name == "RMS and velocity":
+            return paper.rms_and_velocity(profile, workers)
+        if name == "STCC and spectra":
+            return paper.peaks_and_spectra(profile, workers)
+        if name == "rod-length study":
+            return agreement.rod_length_study(profile, out_dir, workers)
+        return _figures(out_dir, state) if figures else []
 
-    with stage("lambda1 agreement"):
-        c, d = agreement.lyapunov_checks(profile, workers)
-        checks += c
-    with stage("time-series agreement"):
-        c, series = agreement.series_checks(profile, workers)
-        checks += c
-    with stage("amplitude scan"):
-        c, scan_rows = agreement.amplitude_scan(profile, workers)
-        checks += c
-    with stage("critical gains"):
-        c, rows, bstar = paper.critical_gains(profile, workers)
-        checks += c
-        paper_rows += rows
-    with stage("lambda1 curve"):
-        curve = paper.lyapunov_curve(profile, workers)
-    with stage("RMS and velocity"):
-        rows, rms_data = paper.rms_and_velocity(profile, workers)
-        paper_rows += rows
-    with stage("STCC and spectra"):
-        rows, peak_data = paper.peaks_and_spectra(profile, workers)
-        paper_rows += rows
-    with stage("rod-length study"):
-        c, rod_rows, rod_ds = agreement.rod_length_study(profile, out_dir, workers)
-        checks += c
-    figure_files = []
-    with stage("figures"):
-        if figures:
-            figure_files = plots.paper_figures(
-                out_dir, curve=curve, lyapunov_points=d["lyapunov"], bstar=bstar,
-                series=series, rms=rms_data, peaks=peak_data, scan=scan_rows,
-            )  # fmt: skip
-            from .sweep import plot_metric
-
-            for metric in ("max_angle", "agreement"):
-                png = out_dir / f"fig_rod_length_{metric}.png"
-                figure_files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
+    try:
+        for name in STAGES:
+            bar.set_postfix_str(name)
+            t = time.perf_counter()
+            saved = store.load(name) if resume else None
+            if saved is not None:
+                state[name], timings[name] = saved["value"], saved["seconds"]
+                reused.append(name)
+            else:
+                state[name] = compute(name)
+                timings[name] = round(time.perf_counter() - t, 2)
+                store.save(name, {"value": state[name], "seconds": timings[name]})
+            done.append(name)
+            bar.update(1)
+            partial = _results(profile, state, timings, workers, t0)
+            partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
+            write_json(partial, out_dir / "results.json")
+            if on_stage:
+                on_stage(name, timings[name], name in reused)
+    except KeyboardInterrupt:
+        bar.close()
+        raise RunInterrupted(list(done), out_dir) from None
     bar.close()
+    results = _results(profile, state, timings, workers, t0)
+    results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
+    return results
 
+
+def _figures(out_dir: Path, state: dict[str, Any]) -> list[Path]:
+    from .sweep import plot_metric
+
+    _, d = state["lambda1 agreement"]
+    _, series = state["time-series agreement"]
+    _, scan_rows = state["amplitude scan"]
+    _, _, bstar = state["critical gains"]
+    _, rms_data = state["RMS and velocity"]
+    _, peak_data = state["STCC and spectra"]
+    _, _, rod_ds = state["rod-length study"]
+    files = plots.paper_figures(
+        out_dir, curve=state["lambda1 curve"], lyapunov_points=d["lyapunov"], bstar=bstar,
+        series=series, rms=rms_data, peaks=peak_data, scan=scan_rows,
+    )  # fmt: skip
+    for metric in ("max_angle", "agreement"):
+        png = out_dir / f"fig_rod_length_{metric}.png"
+        files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
+    return files
+
+
+def _divergence(state: dict[str, Any]) -> list[dict]:
+    """Where runs of the finished stages diverged or left the small-angle regime.
+
+    Time series at the paper's gains (both engines, every realisation), the
+    amplitude scan (whose large amplitudes leave the small angles on purpose)
+    and the rod-length study (per grid point).
+    """
+    from .divergence import pendulum_length, summary, trajectory_events
+
+    out: list[dict] = []
+    if "time-series agreement" in state:
+        for model, d in state["time-series agreement"][1].items():
+            for side in ("full", "reduced"):
+                tr = d[side]
+                p = BalanceParams(**{k: tr.attrs[k] for k in
+                                     ("beta", "alpha", "gamma", "nu", "tau", "dt")})  # fmt: skip
+                ev = trajectory_events(tr, pendulum_length(p))
+                line = summary(ev, tr.shape[0])
+                if line:
+                    out.append({"stage": "time-series agreement", "run": f"{model} {side}",
+                                "summary": line, "events": [e.as_dict() for e in ev]})  # fmt: skip
+    if "amplitude scan" in state:
+        for r in state["amplitude scan"][1]:
+            if not r["small_angle"]:
+                what = "fell (|theta| > pi/2)" if r["fell"] else "left the small-angle regime"
+                out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
+                            f"{r['amplitude']:g} m", "summary": f"{what}: largest |theta| "
+                            f"{r['max_abs_angle']:.3g} rad (intended: the scan looks for the "
+                            "breakdown)"})  # fmt: skip
+    if "rod-length study" in state:
+        ds = state["rod-length study"][2]
+        if "divergence_time" in ds:
+            t = ds["divergence_time"]
+            dims = [d for d in t.dims if d != "realization"]
+            for idx in np.ndindex(*(ds.sizes[d] for d in dims)):
+                times = t.isel(dict(zip(dims, idx, strict=True))).values
+                bad = np.flatnonzero(np.isfinite(times))
+                if bad.size:
+                    where = ", ".join(
+                        f"{d}={ds[d].values[i]}" for d, i in zip(dims, idx, strict=True)
+                    )
+                    out.append({"stage": "rod-length study", "run": where,
+                                "summary": f"realisations {bad.tolist()} of {times.size} "
+                                f"diverged (first at t = {np.nanmin(times):.4g} s)"})  # fmt: skip
+    return out
+
+
+def _results(
+    profile: Profile, state: dict[str, Any], timings: dict, workers: int | None, t0: float
+) -> dict[str, Any]:
+    """The results dictionary from the stages finished so far (in stage order)."""
+    checks, paper_rows = [], []
+    scan_rows, rod_rows, figure_files = [], [], []
+    for name in STAGES:
+        if name not in state:
+            continue
+        v = state[name]
+        if name in ("lambda1 agreement", "time-series agreement"):
+            checks += v[0]
+        elif name == "amplitude scan":
+            checks += v[0]
+            scan_rows = v[1]
+        elif name == "critical gains":
+            checks += v[0]
+            paper_rows += v[1]
+        elif name in ("RMS and velocity", "STCC and spectra"):
+            paper_rows += v[0]
+        elif name == "rod-length study":
+            checks += v[0]
+            rod_rows = v[1]
+        elif name == "figures":
+            figure_files = v
+    divergence = _divergence(state)
     counts = {s: sum(ch.status == s for ch in checks) for s in (PASS, FAIL, INCONCLUSIVE)}
     return {
         "cipval_results": 1,
@@ -117,9 +300,10 @@ def run_validation(
         "paper": paper_rows,
         "amplitude_scan": scan_rows,
         "rod_length": rod_rows,
-        "figures": [str(p.name) for p in figure_files],
+        "figures": [str(Path(p).name) for p in figure_files],
+        "divergence": divergence,
         "versions": package_versions(),
         "workers": workers,
-        "timings_s": timings,
+        "timings_s": dict(timings),
         "elapsed_s": round(time.perf_counter() - t0, 1),
     }

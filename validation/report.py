@@ -15,6 +15,7 @@ import base64
 import html
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,10 @@ def jsonable(v: Any) -> Any:
 
 
 def write_json(results: dict, path: Path) -> Path:
-    path.write_text(json.dumps(jsonable(results), indent=1))
+    """Write ``path`` atomically (a per-process temporary name, then os.replace)."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(jsonable(results), indent=1))
+    os.replace(tmp, path)
     return path
 
 

@@ -1,0 +1,176 @@
+"""Every bad input of the command line: exit 2, exactly one line on stderr, no traceback.
+
+A table walks every command with bad values (each must be refused before any
+work); hypothesis draws bad counts and non-numbers for the typed options.
+"""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from validation.cli import build_parser, main
+
+BAD_STUDY = """[study]
+name = "x"
+engine = "reduced"
+metrics = ["rms"]
+bogus = 3
+[grid]
+beta = [20.0, 21.0]
+"""
+
+# (argv with {file} = a regular file, {d} = a fresh directory, {bad} = the bad study; words
+# that the one-line message must contain)
+CASES = [
+    ("simulate --beta 20 --out {file}/run.npz", ["--out", "is not a directory"]),
+    ("simulate --beta 20 --out {d}/missing/run.npz", ["--out", "does not exist"]),
+    ("simulate --beta 20 --out {d}/run.txt", ["--out", ".npz"]),
+    ("simulate --beta 20 --out {d}", ["--out", ".npz"]),
+    ("sweep --engine reduced --grid beta=20,21 --metrics rms --out {file}/sw", ["--out"]),
+    ("run --profile smoke --out {file}/out", ["--out"]),
+    ("run --profile smoke --out {file}", ["--out", "not a directory"]),
+    ("baseline --out {file}/b.json", ["--out"]),
+    ("baseline --out {d}/b.txt", ["--out", ".json"]),
+    ("stability --beta 30 --beta-grid 0:80:0", ["--beta-grid", "[2, 10000]"]),
+    ("stability --beta 30 --beta-grid 80:0:5", ["--beta-grid", "LOW < HIGH"]),
+    ("stability --beta 30 --beta-grid a:b", ["--beta-grid", "LOW:HIGH:N"]),
+    ("stability --beta 30 --tau-grid 0:0.3:5", ["--tau-grid", "> 0"]),
+    ("stability --beta 30 --roots 0", ["--roots", ">= 1"]),
+    ("stability --beta 30 --plot {d}/x.gif", ["--plot", ".png"]),
+    ("sweep --engine reduced --grid beta=abc --metrics rms --out {d}/s", ["grid.beta", "number"]),
+    ("sweep --engine reduced --grid beta= --metrics rms --out {d}/s", ["--grid", "no values"]),
+    ("sweep --engine reduced --grid beta --metrics rms --out {d}/s", ["--grid", "NAME="]),
+    ("sweep --engine reduced --grid foo=1,2 --metrics rms --out {d}/s", ["foo", "allowed"]),
+    ("sweep --engine reduced --grid beta=20 --metrics rms,max_angle", ["max_angle", "rigid"]),
+    ("sweep --engine reduced --grid beta=20 --metrics speed", ["speed", "allowed"]),
+    ("sweep --engine reduced --grid beta=20 --metrics rms --realizations 1", ["--realizations"]),
+    ("sweep {bad}", ["bogus", "[study]"]),
+    ("sweep no_such_study", ["study file"]),
+    ("sweep --engine reduced --grid beta=20 --metrics rms --workers 0", ["--workers", ">= 1"]),
+    (
+        "sweep --engine reduced --grid beta=20,21 --metrics rms --duration 1e12 --out {d}/s",
+        ["--duration", "--force"],
+    ),
+    ("sweep-plot {d} --metric rms --x beta", ["dataset"]),
+    ("simulate --beta 20 --out {d}/r.npz --threads 0", ["--threads", ">= 1"]),
+    ("lyapunov --beta 20 --threads -2", ["--threads", ">= 1"]),
+    ("simulate --beta 20 --out {d}/r.npz --duration 1e15", ["--duration", "--force", "4e+18"]),
+    ("lyapunov --beta 20 --duration 1e15", ["--duration", "--force"]),
+    ("critical-gain --beta-range 19 21 --duration 1e12", ["--duration", "--force"]),
+    ("critical-gain --beta-range 21 19", ["--beta-range", "LOW < HIGH"]),
+    ("critical-gain --beta-range 19 21 --gains 1", ["--gains", ">= 2"]),
+    ("lyapunov --beta 20 --engine bullet", ["--engine", "reduced"]),
+    ("lyapunov --beta 20 --engine mujoco --stepper explicit", ["--stepper", "rigid-body"]),
+    ("simulate --beta 20 --out {d}/r.npz --decimate 0", ["--decimate", ">= 1"]),
+    ("simulate --beta 20 --out {d}/r.npz --model triple", ["--model", "single"]),
+    ("simulate --beta 20 --out {d}/r.npz --engine mujoco --rod-length -1", ["--rod-length"]),
+    ("simulate --beta 20 --out {d}/r.npz --amplitude nan", ["--amplitude", "finite"]),
+    ("lyapunov --beta 20 --seed -1", ["--seed", ">= 0"]),
+    ("lyapunov --beta -3", ["beta"]),
+    ("lyapunov --beta 20 --tau 0.1234", ["tau"]),
+    ("lyapunov --beta 20 --dt -1", ["dt"]),
+    ("lyapunov", ["--beta", "required"]),
+    ("run --profile huge", ["--profile", "quick"]),
+    ("run --workers 0", ["--workers", ">= 1"]),
+    ("run --baseline {d}/none.json --out {d}/o", ["--baseline", "no such file"]),
+    ("run --baseline {file} --out {d}/o", ["--baseline", "not JSON"]),
+    ("baseline --from {d}/none.json --out {d}/b.json", ["--from", "no such file"]),
+    ("engines --engines reduced,bullet", ["engine must be one of", "bullet"]),
+    ("engines --threads 0", ["threads", ">= 1"]),
+    ("engines --engines reduced --out {file}/x", ["--out"]),
+    ("render --beta 20 --out {d}/run.avi", ["--out", ".gif"]),
+    ("render --beta 20 --fps 0 --out {d}/run.gif", ["--fps", "> 0"]),
+    ("render --beta 20 --realization -1 --out {d}/run.gif", ["--realization", ">= 0"]),
+    ("render --beta 20 --out {file}/run.gif", ["--out", "is not a directory"]),
+    ("nosuchcommand", ["invalid choice"]),
+]
+
+
+@pytest.fixture
+def places(tmp_path):
+    f = tmp_path / "a_file"
+    f.write_text("not a directory and not JSON")
+    d = tmp_path / "d"
+    d.mkdir()
+    bad = tmp_path / "bad_study.toml"
+    bad.write_text(BAD_STUDY)
+    return {"file": str(f), "d": str(d), "bad": str(bad)}
+
+
+def run(capsys, argv: list[str]) -> tuple[int, str, str]:
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_usage_error(code: int, err: str, words: list[str]) -> None:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 2, err
+    assert len(lines) == 1, err
+    assert lines[0].startswith("cip-validate: error: "), lines[0]
+    assert "Traceback" not in err
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+@pytest.mark.parametrize(("argv", "words"), CASES, ids=[c[0].split(" --out")[0] for c in CASES])
+def test_bad_input_is_one_line_exit_2_before_any_work(capsys, places, argv, words):
+    code, out, err = run(capsys, argv.format(**places).split())
+    assert_one_line_usage_error(code, err, words)
+    assert out == ""
+
+
+def _count_options():
+    """(command argv prefix, option, minimum) for every integer count option of the CLI."""
+    return [
+        (["lyapunov", "--beta", "20"], "--realizations", 1),
+        (["lyapunov", "--beta", "20"], "--threads", 1),
+        (["critical-gain", "--beta-range", "19", "21"], "--gains", 2),
+        (["stability", "--beta", "30"], "--roots", 1),
+        (["run"], "--workers", 1),
+        (["sweep", "--engine", "reduced", "--grid", "beta=20"], "--workers", 1),
+    ]
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(case=st.sampled_from(_count_options()), value=st.integers(max_value=0))
+def test_counts_below_their_minimum_are_refused(capsys, case, value):
+    prefix, option, minimum = case
+    value = min(value, minimum - 1)
+    code, _, err = run(capsys, [*prefix, option, str(value)])
+    assert_one_line_usage_error(code, err, [option, f">= {minimum}"])
+
+
+@settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    option=st.sampled_from(["--beta", "--alpha", "--gamma", "--nu", "--tau", "--dt", "--duration"]),
+    text=st.one_of(
+        st.sampled_from(["nan", "inf", "-inf", "abc", "1e", "--", "0x1g"]),
+        st.text(alphabet="abcxyz!@#", min_size=1, max_size=6),
+    ),
+)
+def test_non_numbers_are_refused(capsys, option, text):
+    argv = ["lyapunov", "--beta", "20", option, text]
+    code, _, err = run(capsys, argv)
+    assert_one_line_usage_error(code, err, [option.lstrip("-")])
+
+
+def test_every_help_works_and_shows_defaults(capsys):
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert main(["--help"]) == 0
+    assert main(["--version"]) == 0
+    capsys.readouterr()
+    for name in sub.choices:
+        assert main([name, "--help"]) == 0, name
+        out = capsys.readouterr().out
+        assert "usage: cip-validate " + name in out
+        assert "%" not in out.replace("95 %", ""), out  # no unformatted % left
+    out_sim = (main(["simulate", "--help"]), capsys.readouterr().out)[1]
+    assert "(default: 0.001)" in out_sim and "time step (s)" in out_sim

@@ -1,0 +1,126 @@
+"""Frames of a simulated run drawn by MuJoCo's offscreen renderer (GIF / MP4 writer at the edge).
+
+Any engine's :class:`cipcore.schema.Trajectory` is shown on the rigid-body
+model (:func:`cip.model.build`): the carts at ``base_position`` (m) and the
+poles at ``angle`` (rad) where the run records it, else at
+theta = arcsin(e / L) from the balancing error e = L sin(theta) (the reduced
+model; |e| > L is drawn as a pole lying flat).  Offscreen rendering needs an
+OpenGL backend: ``MUJOCO_GL=egl`` (Debian ``libegl1``, ``libgl1-mesa-dri``) or
+``MUJOCO_GL=osmesa`` (``libosmesa6``), chosen before MuJoCo is imported.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from cipcore.params import ParameterError
+from cipcore.schema import Trajectory
+
+#: offscreen OpenGL backends MuJoCo can use, in the order tried when MUJOCO_GL is unset
+GL_BACKENDS = ("egl", "osmesa")
+VIDEO_SUFFIXES = (".gif", ".mp4")
+
+
+def choose_gl_backend() -> str:
+    """Set MUJOCO_GL (if unset) before MuJoCo is imported; returns the backend in use."""
+    import sys
+
+    if "mujoco" in sys.modules and "MUJOCO_GL" not in os.environ:
+        return "already initialised"
+    return os.environ.setdefault("MUJOCO_GL", GL_BACKENDS[0])
+
+
+def joint_positions(tr: Trajectory, length: float, realization: int) -> np.ndarray:
+    """(S, C, 2) cart position (m) and pole angle (rad) of one realisation over time."""
+    x = np.asarray(tr["base_position"][realization], dtype=float)
+    if "angle" in tr.data:
+        th = np.asarray(tr["angle"][realization], dtype=float)
+    else:
+        e = np.asarray(tr["balancing_error"][realization], dtype=float)
+        with np.errstate(invalid="ignore"):
+            th = np.arcsin(np.clip(e / length, -1.0, 1.0))
+    return np.stack([x, th], axis=-1)
+
+
+def render_frames(
+    mj_model, positions: np.ndarray, width: int = 480, height: int = 320
+) -> list[np.ndarray]:
+    """RGB frames (height, width, 3) uint8, one per row of ``positions`` (S, C, 2).
+
+    Joints ``x_M<i>`` and ``theta_<i>`` of the rigid-body model are set from
+    ``positions``; a non-finite sample ends the frames (the run diverged there).
+    """
+    import mujoco
+
+    data = mujoco.MjData(mj_model)
+    mj_model.vis.headlight.ambient[:] = 0.5
+    mj_model.vis.headlight.diffuse[:] = 0.7
+    n_c = positions.shape[1]
+    adr = [
+        (mj_model.joint(f"x_M{i + 1}").qposadr[0], mj_model.joint(f"theta_{i + 1}").qposadr[0])
+        for i in range(n_c)
+    ]
+    try:
+        renderer = mujoco.Renderer(mj_model, height, width)
+    except Exception as exc:  # no OpenGL context: one line, with what to install
+        raise ParameterError(
+            f"render: no offscreen OpenGL ({type(exc).__name__}: {exc}); install Debian "
+            "libegl1 libgl1-mesa-dri (MUJOCO_GL=egl) or libosmesa6 (MUJOCO_GL=osmesa)"
+        ) from None
+    cam = mujoco.MjvCamera()
+    mujoco.mjv_defaultFreeCamera(mj_model, cam)
+    frames = []
+    with renderer:
+        for k in range(positions.shape[0]):
+            if not np.isfinite(positions[k]).all():
+                break
+            for i, (ax, ath) in enumerate(adr):
+                data.qpos[ax], data.qpos[ath] = positions[k, i]
+            mujoco.mj_forward(mj_model, data)
+            if k == 0:
+                cam.lookat[:] = [data.qpos[[a for a, _ in adr]].mean(), 0.0, 0.25]
+                cam.distance, cam.elevation, cam.azimuth = 2.0, -5.0, 90.0
+            renderer.update_scene(data, camera=cam)
+            frames.append(renderer.render().copy())
+    return frames
+
+
+def check_video_path(option: str, path: str | Path) -> Path:
+    """``path`` ends in .gif or .mp4 (.mp4 needs ffmpeg on PATH)."""
+    import shutil
+
+    p = Path(path)
+    if p.suffix.lower() == ".mp4" and shutil.which("ffmpeg") is None:
+        raise ParameterError(f"{option}: .mp4 needs ffmpeg on PATH (not found); write a .gif")
+    return p
+
+
+def write_video(frames: list[np.ndarray], path: Path, fps: float) -> Path:
+    """Write ``frames`` as an animated GIF (Pillow) or an MP4 (matplotlib's ffmpeg writer)."""
+    if not frames:
+        raise ParameterError("render: no finite frame to write (the run diverged at once)")
+    if path.suffix.lower() == ".gif":
+        from PIL import Image
+
+        images = [Image.fromarray(f) for f in frames]
+        images[0].save(path, save_all=True, append_images=images[1:],
+                       duration=round(1000 / fps), loop=0)  # fmt: skip
+        return path
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FFMpegWriter
+
+    h, w = frames[0].shape[:2]
+    fig = plt.figure(figsize=(w / 100, h / 100), dpi=100)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.axis("off")
+    im = ax.imshow(frames[0])
+    writer = FFMpegWriter(fps=fps)
+    with writer.saving(fig, str(path), dpi=100):
+        for f in frames:
+            im.set_data(f)
+            writer.grab_frame()
+    plt.close(fig)
+    return path

@@ -1,0 +1,200 @@
+"""The validation suite's commands: run, baseline."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+from cipcore.params import ParameterError
+
+from ..cli_args import (
+    EXIT_FAIL,
+    EXIT_OK,
+    check_out_dir,
+    check_out_file,
+    interrupt_signals,
+    interrupted_status,
+    positive_int,
+)
+from ..profiles import PROFILES
+
+
+def read_results(path: str, option: str) -> dict:
+    """A results.json written by cip-validate, or a one-line usage error naming ``option``."""
+    p = Path(path)
+    if not p.is_file():
+        raise ParameterError(f"{option}: no such file {path!r}")
+    try:
+        results = json.loads(p.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"{option}: {path!r} is not JSON ({exc})") from None
+    if not isinstance(results, dict) or results.get("cipval_results") != 1:
+        raise ParameterError(f"{option}: {path!r} is not a cip-validate results file")
+    if results.get("partial"):
+        raise ParameterError(f"{option}: {path!r} is a partial run; finish it with --resume")
+    return results
+
+
+def _say(text: str) -> None:
+    from tqdm.auto import tqdm
+
+    tqdm.write(text, file=sys.stderr)
+
+
+def cmd_run(a: argparse.Namespace) -> int:
+    from ..harness import STAGES, RunInterrupted, compile_note, run_validation
+    from ..report import compare_with_baseline, summary_table, write_reports
+
+    baseline = read_results(a.baseline, "--baseline") if a.baseline else None
+    if baseline is not None and baseline.get("profile") != a.profile:
+        raise ParameterError(
+            f"--baseline: {a.baseline!r} was made with profile {baseline.get('profile')!r}, "
+            f"this run uses {a.profile!r}"
+        )
+    out = check_out_dir("--out", a.out)
+    note = compile_note()
+    if note:
+        _say(note)
+
+    def on_stage(name: str, seconds: float, reused: bool) -> None:
+        how = "reused from the last run" if reused else f"{seconds:.1f} s"
+        _say(f"stage {STAGES.index(name) + 1}/{len(STAGES)} {name}: {how}")
+
+    with interrupt_signals() as got:
+        try:
+            results = run_validation(
+                PROFILES[a.profile],
+                out,
+                workers=a.workers,
+                progress=True,
+                figures=not a.no_figures,
+                resume=a.resume,
+                on_stage=on_stage,
+            )
+        except RunInterrupted as exc:
+            kept = ", ".join(exc.kept) or "none"
+            name, status = interrupted_status(got)
+            print(
+                f"cip-validate: interrupted by {name}: kept {len(exc.kept)} of {len(STAGES)} "
+                f"stages ({kept}) in {out / 'results.json'} (partial); rerun with --resume "
+                "to finish",
+                file=sys.stderr,
+            )
+            return status
+        regression = compare_with_baseline(results, baseline) if baseline else None
+        if regression:
+            failed = [c for c in regression if c.status == "fail"]
+            results["regression"] = {"baseline": str(a.baseline), "checked": len(regression),
+                                     "failed": [c.as_dict() for c in failed]}  # fmt: skip
+            if failed:
+                results["status"] = "fail"
+        write_reports(results, out, regression)
+    print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
+    for d in results.get("divergence", []):
+        print(f"divergence: {d['stage']}, {d['run']}: {d['summary']}")
+    if regression is not None:
+        nfail = sum(c.status == "fail" for c in regression)
+        print(
+            f"regression vs {a.baseline}: {len(regression) - nfail} of {len(regression)} "
+            "numbers unchanged within 4 combined standard errors"
+        )
+    print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'results.json'}")
+    return EXIT_FAIL if results["status"] == "fail" else EXIT_OK
+
+
+def cmd_baseline(a: argparse.Namespace) -> int:
+    from ..harness import RunInterrupted, run_validation
+    from ..report import write_json
+
+    out = check_out_file("--out", a.out, (".json",))
+    if a.from_results:
+        read_results(a.from_results, "--from")
+        shutil.copyfile(a.from_results, out)
+    else:
+        with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
+            try:
+                results = run_validation(
+                    PROFILES[a.profile], Path(tmp), workers=a.workers, progress=True, figures=False
+                )
+            except RunInterrupted:
+                name, status = interrupted_status(got)
+                print(
+                    f"cip-validate: interrupted by {name}: no baseline written (run "
+                    "`cip-validate run` and `baseline --from` to keep stages)",
+                    file=sys.stderr,
+                )
+                return status
+        write_json(results, out)
+    print(f"baseline written: {out}")
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    profiles = tuple(PROFILES)
+    p = sub.add_parser(
+        "run",
+        help="the validation suite: checks, paper table, figures, report",
+        description="Every agreement check, the paper table, the figures and "
+        "the report.  Each finished stage is saved in --out at once "
+        "(results.json marked partial until the end); --resume reuses them.",
+    )
+    p.add_argument(
+        "--profile",
+        choices=profiles,
+        default="quick",
+        help="run size: smoke (seconds, every code path), quick (every check, "
+        "minutes), paper (the paper's counts and durations)",
+    )
+    p.add_argument(
+        "--out",
+        default="cip-validate-out",
+        metavar="DIR",
+        help="output directory (created if absent; must be writable)",
+    )
+    p.add_argument(
+        "--baseline", metavar="FILE", help="results.json to compare with (regression run)"
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="threads / processes (count >= 1; default: all cores)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="reuse the stages an interrupted run with the same profile left in --out",
+    )
+    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser(
+        "baseline",
+        help="write a baseline results file for --baseline",
+        description="Run the suite without figures (or take --from) and write "
+        "the results as a regression baseline.",
+    )
+    p.add_argument("--profile", choices=profiles, default="quick", help="run size")
+    p.add_argument(
+        "--out",
+        default="baseline.json",
+        metavar="FILE.json",
+        help="baseline file to write (.json, in a writable directory)",
+    )
+    p.add_argument(
+        "--from",
+        dest="from_results",
+        metavar="RESULTS.json",
+        help="use an existing results.json instead of running",
+    )
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="threads / processes (count >= 1; default: all cores)",
+    )
+    p.set_defaults(func=cmd_baseline)

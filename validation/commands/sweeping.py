@@ -1,0 +1,186 @@
+"""Parameter-study commands: sweep, sweep-plot."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from cipcore.models import MODEL_NAMES
+from cipcore.params import ParameterError
+
+from ..cli_args import (
+    EXIT_OK,
+    add_engine_arg,
+    add_force_arg,
+    check_out_dir,
+    check_out_file,
+    check_work,
+    int_at_least,
+    interrupt_signals,
+    interrupted_status,
+    nonnegative_int,
+    positive_float,
+    positive_int,
+)
+from ..sweeps import METRICS, Study, default_studies_dir, parse_grid, run_sweep, write_sweep_report
+
+
+def study_from_args(a: argparse.Namespace) -> Study:
+    """The study of a TOML file or shipped study name, overridden by the options."""
+    if a.study:
+        path = Path(a.study)
+        if not path.exists() and (default_studies_dir() / f"{a.study}.toml").exists():
+            path = default_studies_dir() / f"{a.study}.toml"
+        d = Study.from_toml(path).as_dict()
+    else:
+        d = {"name": "cli"}
+    grid = {**d.get("grid", {}), **parse_grid(a.grid or [], "--grid")}
+    fixed = {**d.get("fixed", {}), **parse_grid(a.set or [], "--set")}
+    fixed = {k: v[0] if isinstance(v, list) and len(v) == 1 else v for k, v in fixed.items()}
+    for k in ("model", "engine", "realizations", "duration", "seed"):
+        if getattr(a, k) is not None:
+            d[k] = getattr(a, k)
+    if a.metrics:
+        d["metrics"] = [m.strip() for m in a.metrics.split(",") if m.strip()]
+    d["grid"], d["fixed"] = grid, fixed
+    return Study(**d)
+
+
+def cmd_sweep(a: argparse.Namespace) -> int:
+    study = study_from_args(a)
+    out = check_out_dir("--out", a.out or f"sweep-{study.name}")
+    n_points = len(study.points())
+    passes = bool(set(study.metrics) - {"lambda1"}) + ("lambda1" in study.metrics)
+    dt = study.fixed.get("dt", min(study.grid.get("dt", [1e-3])))
+    check_work(
+        "--duration",
+        study.realizations,
+        study.duration,
+        float(dt),
+        runs=n_points * passes,
+        force=a.force,
+    )
+    finished = []
+    t = time.perf_counter()
+    with interrupt_signals() as got:
+        try:
+            rep = run_sweep(
+                study,
+                out,
+                workers=a.workers,
+                scheduler=a.scheduler,
+                progress=True,
+                on_point=finished.append,
+                wait_for_lock=a.wait,
+            )
+        except KeyboardInterrupt:
+            name, status = interrupted_status(got)
+            print(
+                f"cip-validate: interrupted by {name}: kept the {len(finished)} grid point(s) "
+                f"finished in this run in {out / 'points'}; rerun the same command to "
+                "finish the other points",
+                file=sys.stderr,
+            )
+            return status
+    report = write_sweep_report(study, out)
+    print(
+        f"sweep {study.name}: {rep.computed} points computed, {rep.reused} reused from {out}, "
+        f"{time.perf_counter() - t:.1f} s"
+    )
+    for d in rep.diverged:
+        times = ", ".join(f"{t:.4g}" for t in d["times_s"])
+        print(
+            f"divergence: point {d['point']}: realisations {d['realizations']} diverged "
+            f"at t = {times} s (data up to there kept)"
+        )
+    print(f"dataset: {rep.dataset_path}\nreport: {report}")
+    return EXIT_OK
+
+
+def cmd_sweep_plot(a: argparse.Namespace) -> int:
+    import xarray as xr
+
+    from ..sweeps import plot_metric
+
+    path = Path(a.dataset)
+    if path.is_dir():
+        path = path / "sweep.nc"
+    if not path.is_file():
+        raise ParameterError(f"dataset: no sweep dataset at {a.dataset!r}")
+    png = check_out_file("--out", a.out or f"{a.metric}_vs_{a.x}.png", (".png", ".pdf", ".svg"))
+    try:
+        ds_file = xr.open_dataset(path, engine="scipy")
+    except (OSError, ValueError, TypeError) as exc:
+        raise ParameterError(f"dataset: {str(path)!r} is not a sweep dataset ({exc})") from None
+    with ds_file as ds:
+        png = plot_metric(ds.load(), a.metric, a.x, png)
+    print(png)
+    return EXIT_OK
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep",
+        help="parameter study over a grid (resumable; local or Dask)",
+        description="A parameter study: every grid point's metrics, each "
+        "point saved at once (rerun to resume), the directory locked while it "
+        "runs, the dataset in DIR/sweep.nc and a report.",
+    )
+    p.add_argument(
+        "study",
+        nargs="?",
+        help="study TOML file, or a shipped study: "
+        + ", ".join(sorted(f.stem for f in default_studies_dir().glob("*.toml"))),
+    )
+    p.add_argument(
+        "--grid",
+        action="append",
+        metavar="NAME=V1,V2,...",
+        help="swept setting (repeatable; units in the README)",
+    )
+    p.add_argument("--set", action="append", metavar="NAME=V", help="fixed setting (repeatable)")
+    p.add_argument("--model", choices=MODEL_NAMES, help="balancing model (default: the study's)")
+    add_engine_arg(p, default=None)
+    p.add_argument(
+        "--metrics", help="comma list from " + ",".join(METRICS) + " (default: the study's)"
+    )
+    p.add_argument(
+        "--realizations",
+        type=int_at_least(2),
+        help="realisations per point (count >= 2; default: the study's)",
+    )
+    p.add_argument(
+        "--duration",
+        type=positive_float,
+        help="simulated time per realisation (s; default: the study's)",
+    )
+    p.add_argument("--seed", type=nonnegative_int, help="study seed (default: the study's)")
+    p.add_argument("--out", metavar="DIR", help="sweep directory (default: sweep-NAME)")
+    p.add_argument(
+        "--workers",
+        type=positive_int,
+        default=None,
+        help="local processes (count >= 1; default: one per core)",
+    )
+    p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://host:8786")
+    p.add_argument(
+        "--wait",
+        action="store_true",
+        help="wait for a sweep holding --out to finish instead of failing",
+    )
+    add_force_arg(p)
+    p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser(
+        "sweep-plot",
+        help="a sweep metric against a parameter, with 95 %% bands",
+        description="One sweep metric against a swept parameter, mean over "
+        "realisations with Student-t 95 % bands.",
+    )
+    p.add_argument("dataset", help="sweep directory or sweep.nc")
+    p.add_argument("--metric", required=True, help="a variable of the dataset, required")
+    p.add_argument("--x", required=True, help="the swept parameter on the x axis, required")
+    p.add_argument("--out", metavar="FILE.png", help="figure file (default: METRIC_vs_X.png)")
+    p.set_defaults(func=cmd_sweep_plot)

@@ -1,0 +1,80 @@
+"""Parameter mapping: one grid point's settings -> the engine's parameters."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from cipcore.models import get_model
+from cipcore.params import BalanceParams, ParameterError
+from cipcore.registry import get_engine
+
+from ..profiles import PAPER_BETA
+
+REDUCED_KEYS = ("beta", "alpha", "gamma", "nu", "tau", "dt")
+PHYSICAL_KEYS = (
+    "rod_length", "rod_length_ratio", "mass_ratio", "rod_mass", "bob_radius",
+    "solref_timeconst", "solref_dampratio", "solimp_width", "integrator",
+)  # fmt: skip
+RUN_KEYS = ("amplitude",)
+SETTINGS = REDUCED_KEYS + PHYSICAL_KEYS + RUN_KEYS
+#: settings whose values are words, not numbers
+WORD_SETTINGS = ("integrator",)
+
+#: initial balancing error (m) of a study that does not set ``amplitude``
+DEFAULT_AMPLITUDE = 1e-3
+#: bob / cart mass m/M of a study that does not set ``mass_ratio``
+DEFAULT_MASS_RATIO = 1e-3
+
+
+def point_params(study: Any, point: dict[str, Any]):
+    """(BalanceParams, CIPParams or None, amplitude) of one grid point of ``study``.
+
+    ``study`` is a :class:`validation.sweeps.study.Study` (its ``model``,
+    ``engine`` and ``fixed`` settings).
+
+    The physical parameters (:class:`cip.model.CIPParams`) are built for an
+    engine with ``capabilities.rigid_body``; beta defaults to the paper's gain
+    for lambda1 = 5e-4 (:data:`validation.profiles.PAPER_BETA`).
+    """
+    s = {**study.fixed, **point}
+    red = {k: float(s[k]) for k in REDUCED_KEYS if k in s}
+    red.setdefault("beta", PAPER_BETA[get_model(study.model).name])
+    params = BalanceParams(**red)
+    amplitude = float(s.get("amplitude", DEFAULT_AMPLITUDE))
+    phys = None
+    if get_engine(study.engine).capabilities.rigid_body:
+        from cip.model import CIPParams
+
+        kw: dict[str, Any] = {}
+        if "rod_length" in s and "rod_length_ratio" in s:
+            raise ParameterError("set rod_length or rod_length_ratio, not both")
+        if "rod_length" in s:
+            kw["rod_length"] = float(s["rod_length"])
+        if "rod_length_ratio" in s:
+            if not params.alpha > 0:
+                raise ParameterError("rod_length_ratio needs alpha > 0 (L = g / alpha)")
+            kw["rod_length"] = (
+                float(s["rod_length_ratio"]) * CIPParams.from_reduced(params).pendulum_length
+            )
+        for k in ("rod_mass", "bob_radius"):
+            if k in s:
+                kw[k] = float(s[k])
+        if "integrator" in s:
+            kw["integrator"] = str(s["integrator"])
+        base = CIPParams()
+        sr = list(base.solref)
+        si = list(base.solimp)
+        if "solref_timeconst" in s:
+            sr[0] = float(s["solref_timeconst"])
+        if "solref_dampratio" in s:
+            sr[1] = float(s["solref_dampratio"])
+        if "solimp_width" in s:
+            si[2] = float(s["solimp_width"])
+        kw["solref"], kw["solimp"] = tuple(sr), tuple(si)
+        mass_ratio = float(s.get("mass_ratio", DEFAULT_MASS_RATIO))
+        phys = CIPParams.from_reduced(params, mass_ratio=mass_ratio, **kw)
+        if not abs(amplitude) < phys.pendulum_length:
+            raise ParameterError(
+                f"amplitude must be < L = {phys.pendulum_length:.4g} m, got {amplitude}"
+            )
+    return params, phys, amplitude

@@ -1,0 +1,199 @@
+"""Storage of a sweep directory: one study per directory, locked while a sweep writes.
+
+Layout of ``DIR``::
+
+    .lock                     fcntl lock held by the running sweep (pid, host, start)
+    study.json                name, fingerprint and the study
+    points/<fp>-<key>.json    one finished grid point, named by the study
+                              fingerprint and the point
+    sweep.nc                  the assembled dataset
+
+Every file is written to a per-process temporary name and moved into place
+with :func:`os.replace`, so a reader never sees half a file.  A second sweep
+into a directory that a running sweep holds fails at once naming the holder
+(or waits for it with ``wait=True``); a directory holding another study is
+refused, so two studies can never mix.
+"""
+
+from __future__ import annotations
+
+import datetime
+import fcntl
+import hashlib
+import json
+import os
+import socket
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+from cipcore.params import ParameterError
+
+from ..versions import package_versions
+from .study import Study, point_key
+
+LOCK_NAME = ".lock"
+
+
+def atomic_write(path: Path, text: str) -> None:
+    """Write ``path`` through a temporary name unique to this process, then os.replace."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+class DirectoryLock:
+    """An exclusive ``fcntl.flock`` on ``DIR/.lock``, naming its holder inside the file."""
+
+    def __init__(self, directory: Path, *, wait: bool = False) -> None:
+        self.path = Path(directory) / LOCK_NAME
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if not wait:
+                holder = self._holder()
+                os.close(self.fd)
+                raise ParameterError(
+                    f"--out {directory} is in use by another sweep ({holder}); "
+                    "wait for it to finish, pass --wait, or use another directory"
+                ) from None
+            fcntl.flock(self.fd, fcntl.LOCK_EX)
+        stamp = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+        info = json.dumps({"pid": os.getpid(), "host": socket.gethostname(), "started": stamp})
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, info.encode(), 0)
+        os.fsync(self.fd)
+
+    def _holder(self) -> str:
+        for _ in range(20):  # the holder writes its name right after taking the lock
+            try:
+                d = json.loads(self.path.read_text() or "null")
+            except (OSError, ValueError):
+                d = None
+            if d:
+                return f"pid {d.get('pid')} on {d.get('host')} since {d.get('started')}"
+            time.sleep(0.05)
+        return "holder unknown"
+
+    def release(self) -> None:
+        if self.fd >= 0:
+            os.ftruncate(self.fd, 0)
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = -1
+
+    def __enter__(self) -> DirectoryLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+class Store:
+    """The sweep directory of one study (see the module docstring).
+
+    Take the lock (:class:`DirectoryLock`) before opening a store for writing.
+    """
+
+    def __init__(self, directory: Path, study: Study) -> None:
+        self.dir = Path(directory)
+        self.fingerprint = study.fingerprint()
+        self.points_dir = self.dir / "points"
+        self.points_dir.mkdir(parents=True, exist_ok=True)
+        meta = self.dir / "study.json"
+        if meta.exists():
+            try:
+                old = json.loads(meta.read_text())
+            except ValueError:
+                old = {}
+            if old.get("fingerprint") != self.fingerprint:
+                raise ParameterError(
+                    f"--out {self.dir} holds another study or one made with other package "
+                    f"versions ({old.get('name')!r}, fingerprint {old.get('fingerprint')}); "
+                    "use a new directory"
+                )
+        else:
+            atomic_write(meta, json.dumps({"name": study.name, "fingerprint": self.fingerprint,
+                                           "study": study.as_dict()}, indent=1))  # fmt: skip
+
+    def path(self, point: dict) -> Path:
+        h = hashlib.sha256(point_key(point).encode()).hexdigest()[:20]
+        return self.points_dir / f"{self.fingerprint}-{h}.json"
+
+    def load(self, point: dict) -> dict | None:
+        p = self.path(point)
+        if not p.exists():
+            return None
+        try:
+            rec = json.loads(p.read_text())
+        except ValueError:
+            return None
+        ok = rec.get("point") == point and rec.get("fingerprint") == self.fingerprint
+        return rec["result"] if ok else None
+
+    def save(self, point: dict, result: dict) -> None:
+        rec = {"fingerprint": self.fingerprint, "point": point, "result": result}
+        atomic_write(self.path(point), json.dumps(rec))
+
+
+# ---------------------------------------------------------- the dataset
+def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
+    """xarray.Dataset from (point, result) pairs in grid order."""
+    import xarray as xr
+
+    dims = list(study.grid)
+    shape = [len(study.grid[k]) for k in dims]
+    index = {k: {json.dumps(v): i for i, v in enumerate(study.grid[k])} for k in dims}
+    n = study.realizations
+    names: dict[str, np.ndarray] = {}
+    for point, res in results:
+        pos = tuple(index[k][json.dumps(point[k])] for k in dims)
+        for name, val in res.items():
+            if name not in names:
+                extra = (n,) if isinstance(val, list) else ()
+                dtype = bool if isinstance(val, bool) else float
+                names[name] = np.full(shape + list(extra), np.nan if dtype is float else False,
+                                      dtype=dtype)  # fmt: skip
+            arr = names[name]
+            arr[pos] = np.array(val, dtype=float) if isinstance(val, list) else val
+    data_vars = {}
+    for name, arr in names.items():
+        d = dims + (["realization"] if arr.ndim > len(dims) else [])
+        data_vars[name] = (d, arr.astype(np.int32) if arr.dtype == bool else arr)
+    coords = {k: _coord(study.grid[k]) for k in dims}
+    coords["realization"] = np.arange(n)
+    ds = xr.Dataset(data_vars, coords=coords)
+    ds.attrs = {
+        "study": json.dumps(study.as_dict()),
+        "fingerprint": study.fingerprint(),
+        "seed_rule": "common random numbers" if study.common_random_numbers
+        else "SeedSequence(seed, spawn_key=(crc32(point json),))",
+        "versions": json.dumps(package_versions()),
+        "units": json.dumps({"lambda1": "1/s", "rms": "log10 m", "max_angle": "rad",
+                             "agreement": "relative L2", "tau_hat": "s",
+                             "divergence_time": "s"}),
+    }  # fmt: skip
+    return ds
+
+
+def is_number(v: object) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _coord(values: list) -> np.ndarray:
+    if all(is_number(v) for v in values):
+        return np.array(values, dtype=float)
+    return np.array([str(v) for v in values])
+
+
+def write_dataset(study: Study, store: Store) -> Path:
+    """Assemble every point of ``store`` into ``DIR/sweep.nc`` (atomically)."""
+    ds = assemble(study, [(p, store.load(p)) for p in study.points()])
+    path = store.dir / "sweep.nc"
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    ds.to_netcdf(tmp, engine="scipy")
+    os.replace(tmp, path)
+    return path
