@@ -154,6 +154,7 @@ def _capabilities() -> Capabilities:
         deterministic=True,
         family="MuJoCo (Warp)",
         trajectory_tolerance=1e-2,
+        packs_points=True,
     )
 
 

@@ -47,6 +47,8 @@ class Capabilities:
     trajectory_tolerance : the relative trajectory distance to the reduced model
         at small amplitude that the engine's precision allows (the contract tests
         and ``cip-validate engines`` hold it to this).
+    packs_points : True when a sweep should pack every grid point x realisation
+        into one batch (:mod:`validation.gpu_sweep`) instead of a point at a time.
     """
 
     precision: str
@@ -56,6 +58,7 @@ class Capabilities:
     deterministic: bool = True
     family: str = ""
     trajectory_tolerance: float = 1e-2
+    packs_points: bool = False
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

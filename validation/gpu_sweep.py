@@ -20,8 +20,6 @@ W x S x C x 3 x 4 bytes (64 points x 1024 realisations x 30 s at decimate 5: 9.4
 
 from __future__ import annotations
 
-import dataclasses
-import warnings
 from typing import Any
 
 import numpy as np
@@ -31,7 +29,9 @@ from cipcore.noise import GainNoise
 from cipcore.params import ParameterError, whole_steps
 from cipcore.schema import Trajectory
 
-from .sweep import Study, point_params, point_seed
+from .sweeps.evaluate import nan_to_none, trajectory_metrics
+from .sweeps.mapping import point_params
+from .sweeps.study import Study, point_seed
 
 GPU_METRICS = ("rms", "max_angle", "agreement", "tau_hat", "slopes")
 
@@ -46,8 +46,7 @@ def packed_trajectories(
     from cip.warp_batch import WarpBatch
     from cipcore.gpu import warp_device
 
-    rigid = dataclasses.replace(study, engine="mujoco")  # the rigid-body settings of each point
-    settings = [point_params(rigid, p) for p in points]
+    settings = [point_params(study, p) for p in points]
     dts = {s[0].dt for s in settings}
     if len(dts) > 1:
         raise ParameterError("dt must be the same for every point of a GPU sweep")
@@ -92,7 +91,8 @@ def packed_trajectories(
         data = {f: out[f][p, :, :k] for f in names}
         attrs = {"seed": seeds[p], "max_abs_angle": max_angle[p].tolist(),
                  "diverged": None if stop[p] == n_steps else {"time": float(stop[p] * dt)},
-                 "engine": "mujoco-warp"}  # fmt: skip
+                 "engine": study.engine, "model": study.model, "dt": dt, "decimate": every,
+                 "first_realization": 0}  # fmt: skip
         trs.append(Trajectory(time=np.arange(k) * dt * every, data=data, attrs=attrs))
     return trs
 
@@ -100,47 +100,20 @@ def packed_trajectories(
 def evaluate_points(
     study_dict: dict, points: list[dict[str, Any]], device: str | None = None
 ) -> list[dict[str, Any]]:
-    """The results of :func:`validation.sweep.evaluate_point` for many points in one batch."""
-    from reduced import simulate
+    """The results of :func:`validation.sweep.evaluate_point` for many points in one batch.
 
-    from . import metrics as mt
-    from .agreement import TRAJECTORY_WINDOW
-    from .sweep import _nan_to_none
-
+    The metrics come from the same code as the CPU sweep's
+    (:func:`validation.sweeps.evaluate.trajectory_metrics`), on the packed
+    trajectories widened to float64 (no metric reads float32).
+    """
     study = Study(**study_dict)
     if "lambda1" in study.metrics:
         raise ParameterError("metrics: lambda1 is not computed by the GPU sweep (use mujoco)")
     results = []
     for point, tr in zip(points, packed_trajectories(study, points, device), strict=True):
-        params, _, amplitude = point_params(dataclasses.replace(study, engine="mujoco"), point)
-        seed, dur = tr.attrs["seed"], study.duration
-        out: dict[str, Any] = {"seed": seed, "diverged": tr.attrs["diverged"] is not None}
-        e = tr["balancing_error"][..., 0].astype(float)
-        dt = study.decimate * params.dt
-        if "rms" in study.metrics:
-            out["rms"] = np.log10(mt.rms(e)).tolist()
-        if "max_angle" in study.metrics:
-            out["max_angle"] = list(tr.attrs["max_abs_angle"])
-        if "agreement" in study.metrics:
-            ref = simulate(study.model, params, min(dur, TRAJECTORY_WINDOW), study.realizations,
-                           seed, amplitude=amplitude, decimate=study.decimate,
-                           fields=("balancing_error",))  # fmt: skip
-            k = min(ref.time.size, e.shape[1])
-            er = ref["balancing_error"][:, :k, 0]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                rel = np.linalg.norm(e[:, :k] - er, axis=1) / np.linalg.norm(er, axis=1)
-            out["agreement"] = rel.tolist()
-        if "tau_hat" in study.metrics:
-            tip = tr["tip_velocity"][..., 0].astype(float)
-            base = tr["base_velocity"][..., 0].astype(float)
-            _, lags, r = mt.stcc(tip, base, dt, 5.0, 0.3, 0.25)
-            th = mt.first_dominant_peak(r, lags, significance=mt.stcc_significance(int(5.0 / dt)))
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)
-                out["tau_hat"] = np.nanmedian(th, axis=-1).tolist()
-        if "slopes" in study.metrics:
-            f, sp = mt.power_spectrum(e, dt, segment=dur / 4)
-            fit = mt.fit_two_power_laws(f, sp, 8.0 / dur, 20.0, n_bins=16, n_bootstrap=50)
-            out["slope_low"], out["slope_high"] = fit.slope_low, fit.slope_high
-        results.append({k: _nan_to_none(v) for k, v in out.items()})
+        params, _, amplitude = point_params(study, point)
+        tr.data = {k: np.asarray(v, dtype=np.float64) for k, v in tr.data.items()}
+        out: dict[str, Any] = {"seed": tr.attrs["seed"]}
+        out.update(trajectory_metrics(study, params, amplitude, tr.attrs["seed"], tr))
+        results.append({k: nan_to_none(v) for k, v in out.items()})
     return results

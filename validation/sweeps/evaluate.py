@@ -44,50 +44,69 @@ def evaluate_point(study_dict: dict, point: dict[str, Any], threads: int = 1) ->
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # recorded below, per realisation
             tr = engine.simulate(study.model, params, dur, n, seed, fields=fields, **kw)
-        events = trajectory_events(tr, pendulum_length(params))
-        out["diverged"] = any(e.kind == "diverged" for e in events)
-        out["divergence_time"] = divergence_times(events, n, int(tr.attrs.get(
-            "first_realization", 0) or 0))  # fmt: skip
-        e = tr["balancing_error"][..., 0].astype(float)
-        dt = tr.sample_interval
-        if "rms" in study.metrics:
-            with np.errstate(over="ignore", invalid="ignore"):
-                out["rms"] = np.log10(mt.rms(e)).tolist()
-        if "max_angle" in study.metrics:
-            out["max_angle"] = list(tr.attrs["max_abs_angle"])
-        if "agreement" in study.metrics:
-            ref = get_engine(REFERENCE).simulate(
-                study.model, params, min(dur, TRAJECTORY_WINDOW), n, seed, amplitude=amplitude,
-                decimate=study.decimate, fields=("balancing_error",), threads=threads,
-            )  # fmt: skip
-            k = ref.time.size
-            ef = tr["balancing_error"][:, :k, 0].astype(float)
-            er = ref["balancing_error"][..., 0]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                rel = np.linalg.norm(ef - er, axis=1) / np.linalg.norm(er, axis=1)
-            out["agreement"] = rel.tolist()
-        if "tau_hat" in study.metrics:
-            _, lags, r = mt.stcc(tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0], dt,
-                                 STCC.stcc_window, STCC.stcc_max_lag,
-                                 STCC.stcc_stride)  # fmt: skip
-            sig = mt.stcc_significance(int(STCC.stcc_window / dt))
-            th = mt.first_dominant_peak(r, lags, significance=sig)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no dominant peak
-                out["tau_hat"] = np.nanmedian(th, axis=-1).tolist()
-        if "slopes" in study.metrics:
-            f, sp = mt.power_spectrum(e, dt, segment=dur / 4)
-            fit = mt.fit_two_power_laws(f, sp, 8.0 / dur, 20.0, n_bins=16, n_bootstrap=50)
-            out["slope_low"] = fit.slope_low
-            out["slope_high"] = fit.slope_high
+        out.update(trajectory_metrics(study, params, amplitude, seed, tr, threads))
     if "lambda1" in study.metrics:
         kw = {"physical": phys} if rigid else {}
         res = engine.lyapunov(study.model, params, dur, n, seed, threads=threads, **kw)
         out["lambda1"] = res.per_realization.tolist()
-    return {k: _nan_to_none(v) for k, v in out.items()}
+    return {k: nan_to_none(v) for k, v in out.items()}
 
 
-def _nan_to_none(v):
+def trajectory_metrics(
+    study: Study, params, amplitude: float, seed: int, tr, threads: int = 1
+) -> dict[str, Any]:
+    """The study's time-series metrics of one point's trajectory ``tr`` (any engine).
+
+    ``diverged`` / ``divergence_time`` (see :func:`evaluate_point`), and those of
+    ``rms`` (log10 RMS of the balancing error, m), ``max_angle`` (rad),
+    ``agreement`` (relative L2 distance to the reduced reference under the same
+    noise over the trajectory window), ``tau_hat`` (median first dominant STCC
+    peak, s) and ``slope_low`` / ``slope_high`` (two power laws of the spectrum)
+    that the study asks for.
+    """
+    n, dur = study.realizations, study.duration
+    out: dict[str, Any] = {}
+    events = trajectory_events(tr, pendulum_length(params))
+    out["diverged"] = any(e.kind == "diverged" for e in events)
+    out["divergence_time"] = divergence_times(events, n, int(tr.attrs.get(
+        "first_realization", 0) or 0))  # fmt: skip
+    e = tr["balancing_error"][..., 0].astype(float)
+    dt = tr.sample_interval
+    if "rms" in study.metrics:
+        with np.errstate(over="ignore", invalid="ignore"):
+            out["rms"] = np.log10(mt.rms(e)).tolist()
+    if "max_angle" in study.metrics:
+        out["max_angle"] = list(tr.attrs["max_abs_angle"])
+    if "agreement" in study.metrics:
+        ref = get_engine(REFERENCE).simulate(
+            study.model, params, min(dur, TRAJECTORY_WINDOW), n, seed, amplitude=amplitude,
+            decimate=study.decimate, fields=("balancing_error",), threads=threads,
+        )  # fmt: skip
+        k = ref.time.size
+        ef = tr["balancing_error"][:, :k, 0].astype(float)
+        er = ref["balancing_error"][..., 0]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rel = np.linalg.norm(ef - er, axis=1) / np.linalg.norm(er, axis=1)
+        out["agreement"] = rel.tolist()
+    if "tau_hat" in study.metrics:
+        _, lags, r = mt.stcc(tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0], dt,
+                             STCC.stcc_window, STCC.stcc_max_lag,
+                             STCC.stcc_stride)  # fmt: skip
+        sig = mt.stcc_significance(int(STCC.stcc_window / dt))
+        th = mt.first_dominant_peak(r, lags, significance=sig)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no dominant peak
+            out["tau_hat"] = np.nanmedian(th, axis=-1).tolist()
+    if "slopes" in study.metrics:
+        f, sp = mt.power_spectrum(e, dt, segment=dur / 4)
+        fit = mt.fit_two_power_laws(f, sp, 8.0 / dur, 20.0, n_bins=16, n_bootstrap=50)
+        out["slope_low"] = fit.slope_low
+        out["slope_high"] = fit.slope_high
+    return out
+
+
+def nan_to_none(v):
+    """NaN and infinities (alone or in a list) as None, for JSON point files."""
     if isinstance(v, list):
         return [None if isinstance(x, float) and not np.isfinite(x) else x for x in v]
     if isinstance(v, float) and not np.isfinite(v):

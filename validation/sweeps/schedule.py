@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cipcore.params import ParameterError
+from cipcore.registry import get_engine
 
 from .evaluate import evaluate_point
 from .store import DirectoryLock, Store, write_dataset
@@ -66,6 +67,11 @@ def run_sweep(
         try:
             if not todo:
                 pass
+            elif get_engine(study.engine).capabilities.packs_points:
+                from ..gpu_sweep import evaluate_points  # one batch of every point x realisation
+
+                for p, r in zip(todo, evaluate_points(sd, todo), strict=True):
+                    finished(p, r)
             elif scheduler:
                 _run_dask(scheduler, sd, todo, finished)
             elif (workers or os.cpu_count() or 1) <= 1:
