@@ -184,8 +184,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_stability)
 
     from validation.commands import add_commands
+    from validation.experiment.cli import register as register_experiment
 
     add_commands(sub)
+    register_experiment(sub)
     return parser
 
 
