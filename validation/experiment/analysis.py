@@ -34,6 +34,9 @@ from .screen import UNIT_PER_PX
 STCC_WINDOW = 5.0
 STCC_MAX_LAG = 0.5
 STCC_STRIDE = 1.0
+#: windows where a velocity's standard deviation is below this (units/s, i.e. 2e-4 px/s,
+#: far below any mouse motion) are motionless: their R is rounding noise and is left out
+MOTION_FLOOR = 1e-6
 
 #: Paper Tables STCC and RMS, pair (A, B), trials 1..5.
 PAPER_AB = {
@@ -89,14 +92,31 @@ def mean_stcc(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """R(x_T', x_M'; lag) averaged over the windows where it is finite.
 
+    Each window is computed on its own stretch of the series (window + max_lag)
+    with :func:`validation.metrics.stcc`, so that the running sums of one
+    window never mix with the amplitudes of another (a trial whose motion
+    grows or decays by orders of magnitude keeps every window exact).
+    Windows in which either velocity stands still (standard deviation below
+    :data:`MOTION_FLOOR`) are left out with the non-finite ones.
     Returns lags (s), the mean R (NaN if no window qualifies) and the number
     of windows averaged.
     """  # fmt: skip
-    _, lags, r = metrics.stcc(tip_velocity, base_velocity, dt, window, max_lag, stride)
-    ok = np.all(np.isfinite(r), axis=-1)
-    if not ok.any():
+    x = np.asarray(tip_velocity, dtype=float)
+    y = np.asarray(base_velocity, dtype=float)
+    w, lmax, step = round(window / dt), round(max_lag / dt), max(1, round(stride / dt))
+    curves = []
+    lags = np.arange(lmax + 1) * dt
+    for start in range(0, x.size - w - lmax + 1, step):
+        seg = slice(start, start + w + lmax)
+        if min(x[seg].std(), y[seg].std()) < MOTION_FLOOR:
+            continue
+        with np.errstate(divide="ignore", invalid="ignore"):
+            _, lags, r = metrics.stcc(x[seg], y[seg], dt, window, max_lag, window)
+        if np.all(np.isfinite(r[0])):
+            curves.append(r[0])
+    if not curves:
         return lags, np.full(lags.shape, np.nan), 0
-    return lags, r[ok].mean(axis=0), int(ok.sum())
+    return lags, np.mean(curves, axis=0), len(curves)
 
 
 def trial_tau_hat(lags: np.ndarray, r_mean: np.ndarray, n_samples: int) -> float:
@@ -105,6 +125,8 @@ def trial_tau_hat(lags: np.ndarray, r_mean: np.ndarray, n_samples: int) -> float
     The average over a trial of ``n_samples`` samples is significant above
     3/sqrt(n_samples), the white-noise level of a correlation over the whole trial.
     """
+    if not np.isfinite(r_mean).any():
+        return float("nan")
     sig = metrics.stcc_significance(n_samples)
     return float(metrics.first_dominant_peak(r_mean, lags, significance=sig))
 

@@ -115,7 +115,7 @@ class ExperimentServer:
                         await ws.send_json({"type": "error", "error": "wrong access token"})
                         continue
                     session, seat = self._create(msg, ws)
-                    await ws.send_json({"type": "created", "seat": seat, **session.describe()})
+                    await ws.send_json({**session.describe(), "type": "created", "seat": seat})
                     await session.broadcast(session.describe())
                 elif kind == "join" and session is None:
                     session, seat, error = self._join(msg, ws)
