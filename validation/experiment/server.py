@@ -85,7 +85,8 @@ class ExperimentServer:
             log.warning("dropped message from %s: %s (%d dropped so far)", peer, why, self.dropped)
 
     async def websocket(self, request: web.Request) -> web.WebSocketResponse:
-        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=4096)
+        # messages above 2 KiB are dropped by the protocol; above 64 KiB aiohttp closes the socket
+        ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=65536)
         await ws.prepare(request)
         peer = request.remote or "?"
         session: Session | None = None
