@@ -62,7 +62,8 @@ function connect() {
     } else if (m.type === "start") {
       running = true; offsets = m.offsets; status("Running: keep the sticks upright.");
     } else if (m.type === "frame") {
-      frameMsg = m; requestAnimationFrame(draw);
+      frameMsg = m; window.cipvalFramesSeen = (window.cipvalFramesSeen || 0) + 1;
+      requestAnimationFrame(draw);
     } else if (m.type === "end") {
       running = false;
       status("Trial ended: " + m.reason + (m.detail ? " (" + m.detail + ")" : "") +
