@@ -18,11 +18,9 @@ def _port(text: str) -> int:
     try:
         v = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--port must be an integer in [0, 65535], got {text!r}"
-        ) from None
+        raise ParameterError(f"--port must be an integer in [0, 65535], got {text!r}") from None
     if not 0 <= v <= 65535:
-        raise argparse.ArgumentTypeError(f"--port must be an integer in [0, 65535], got {v}")
+        raise ParameterError(f"--port must be an integer in [0, 65535], got {v}")
     return v
 
 
@@ -34,7 +32,7 @@ def register(subparsers) -> None:
 
     s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)")
     s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    s.add_argument("--port", type=_port, default=8050, help="0 picks a free port")
+    s.add_argument("--port", default="8050", help="0 picks a free port")
     s.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
     s.add_argument("--out", default="experiment-data", help="directory of the recordings")
     s.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
@@ -57,10 +55,12 @@ def register(subparsers) -> None:
     b.add_argument("--tau", type=float, default=0.1, help="bot delay (s)")
     b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
     b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws")
+    b.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
     b.set_defaults(func=cmd_bots)
 
 
 def cmd_serve(a: argparse.Namespace) -> int:
+    a.port = _port(a.port)
     check_positive("--trial-duration", a.trial_duration)
     check_count("--countdown", a.countdown, minimum=0)
     try:
@@ -129,7 +129,7 @@ def cmd_bots(a: argparse.Namespace) -> int:
             groups = [[x] for x in labels] if mode == "single" else [labels]
             for group in groups:
                 specs = [BotSpec(a.beta, a.tau, a.nu, int(next(seeds))) for _ in group]
-                path = run_bot_trial(settings, specs, group, k, out)
+                path = run_bot_trial(settings, specs, group, k, out, engine=a.engine)
                 done.append(path)
                 print(f"{path}", flush=True)
     print(json.dumps({"trials": len(done), "out": str(out)}))

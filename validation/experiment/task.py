@@ -128,11 +128,9 @@ class TaskModel(Protocol):
 
     name: str
 
-    @property
-    def tip_position(self) -> float: ...
-
-    @property
-    def tip_velocity(self) -> float: ...
+    def tips(self) -> tuple[np.ndarray, np.ndarray]:
+        """Upper ends of the sticks now: positions and velocities, model coordinates, (C,)."""
+        ...
 
     def advance(self, bases: np.ndarray) -> None:
         """Advance one frame with the lower ends (model coordinates) held at ``bases``."""
@@ -166,23 +164,80 @@ class ReducedTask:
 
     def __init__(self, settings: TaskSettings) -> None:
         p = settings.params
+        self._n = settings.n_sticks
         self._map, self._gain = semi_implicit_map(p.alpha, p.gamma, p.dt, settings.substeps)
         self._y = np.array([INITIAL_TIP, 0.0])
 
-    @property
-    def tip_position(self) -> float:
-        return float(self._y[0])
-
-    @property
-    def tip_velocity(self) -> float:
-        return float(self._y[1])
+    def tips(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.full(self._n, self._y[0]), np.full(self._n, self._y[1])
 
     def advance(self, bases: np.ndarray) -> None:
         self._y = self._map @ self._y + self._gain * float(np.mean(bases))
 
 
+class MujocoTask:
+    """The rigid-body CIP of :mod:`cip.model` with the mouse driving each cart.
+
+    The bodies are the project's MuJoCo model built from the experiment's
+    parameters (:meth:`cip.model.CIPParams.from_reduced`: pendulum length
+    L = g / alpha, damping gamma, point-mass bob with m/M = 1e-3, the rod of
+    length l as a tendon equality; displacements in m = model units).  Each cart
+    follows its subject's lower end through a stiff, critically damped position
+    servo on its motor ``u_i``, force M (omega^2 (x_mouse - x_M) - 2 omega x_M'),
+    omega = :attr:`SERVO_OMEGA` (lag 2/omega = 4 ms), recomputed every 1 ms
+    sub-step of MuJoCo's ``Euler`` integrator.  The pendulum starts at the angle
+    that puts its tip at the paper's initial position, at rest; the upper end
+    reported is the bob, x_M + L sin(theta), and its velocity.  Unlike the reduced
+    model the two tips of the coupled model are two bodies held together by a
+    soft constraint, so each stick reports its own tip.
+    """
+
+    name = "mujoco"
+    SERVO_OMEGA = 500.0
+
+    def __init__(self, settings: TaskSettings) -> None:
+        import mujoco
+
+        from cip.model import CIPParams, build
+
+        phys = CIPParams.from_reduced(settings.params, rod_length=max(settings.rod_length, 1e-3))
+        self._mj = mujoco
+        self.model = build(settings.mode, phys)
+        self.data = mujoco.MjData(self.model)
+        self._n = settings.n_sticks
+        self._L = phys.pendulum_length
+        self._M = phys.cart_mass
+        self._sub = settings.substeps
+        obj = mujoco.mjtObj
+        self._cart = [self.model.joint(f"x_M{i + 1}").qposadr[0] for i in range(self._n)]
+        self._hinge = [self.model.joint(f"theta_{i + 1}").qposadr[0] for i in range(self._n)]
+        self._cart_v = [self.model.joint(f"x_M{i + 1}").dofadr[0] for i in range(self._n)]
+        self._hinge_v = [self.model.joint(f"theta_{i + 1}").dofadr[0] for i in range(self._n)]
+        self._u = [mujoco.mj_name2id(self.model, obj.mjOBJ_ACTUATOR, f"u_{i + 1}")
+                   for i in range(self._n)]  # fmt: skip
+        for i, b in enumerate(settings.initial_bases()):
+            self.data.qpos[self._cart[i]] = b
+            self.data.qpos[self._hinge[i]] = np.arcsin((INITIAL_TIP - b) / self._L)
+        mujoco.mj_forward(self.model, self.data)
+
+    def tips(self) -> tuple[np.ndarray, np.ndarray]:
+        q, v = self.data.qpos, self.data.qvel
+        th = q[self._hinge]
+        pos = q[self._cart] + self._L * np.sin(th)
+        vel = v[self._cart_v] + self._L * np.cos(th) * v[self._hinge_v]
+        return pos, vel
+
+    def advance(self, bases: np.ndarray) -> None:
+        w = self.SERVO_OMEGA
+        d = self.data
+        for _ in range(self._sub):
+            x, v = d.qpos[self._cart], d.qvel[self._cart_v]
+            d.ctrl[self._u] = self._M * (w * w * (bases - x) - 2 * w * v)
+            self._mj.mj_step(self.model, d)
+
+
 #: engine name -> factory
-ENGINES: dict[str, type] = {"reduced": ReducedTask}
+ENGINES: dict[str, type] = {"reduced": ReducedTask, "mujoco": MujocoTask}
 
 
 def make_task(engine: str, settings: TaskSettings) -> TaskModel:

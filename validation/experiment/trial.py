@@ -76,7 +76,7 @@ class Trial:
     def screen_positions(self) -> tuple[np.ndarray, np.ndarray]:
         """(thick lines, thin lines) in screen model units (offsets added)."""
         off = self.settings.offsets
-        return self.task.tip_position + off, self.bases + off
+        return self.task.tips()[0] + off, self.bases + off
 
     def frame(
         self, pixels: list[float | None], jitter: float = 0.0, wall: float = math.nan
@@ -96,9 +96,10 @@ class Trial:
         vel = (new - self.bases) / s.frame if self.k > 0 else np.zeros_like(new)
         self.bases = new
         n = s.n_sticks
+        tip, tip_v = self.task.tips()
         sample = Sample(
             k=self.k, t=self.k * s.frame, wall=wall, jitter=jitter,
-            tip_position=[self.task.tip_position] * n, tip_velocity=[self.task.tip_velocity] * n,
+            tip_position=tip.tolist(), tip_velocity=tip_v.tolist(),
             base_position=new.tolist(), base_velocity=vel.tolist(),
             pixel=[None if p is None else float(p) for p in pixels],
         )  # fmt: skip
