@@ -228,3 +228,34 @@ def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
     lost = last_seen - int(k[-1])
     assert lost <= 50, f"lost {lost} frames"
     print(f"SIGKILL: last frame seen by the page {last_seen}, last on disk {k[-1]}")
+
+
+def test_sigterm_finalises_the_running_trial(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "validation.cli", "experiment", "serve", "--port", "0",
+         "--out", str(tmp_path), "--countdown", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
+    )  # fmt: skip
+    try:
+        url = proc.stdout.readline().split("open ")[1].strip()
+
+        async def go():
+            token = urllib.parse.parse_qs(urllib.parse.urlparse(url).query)["token"][0]
+            async with aiohttp.ClientSession() as s, s.ws_connect(url.split("?")[0] + "ws") as ws:
+                await ws.send_json({"type": "create", "token": token, "mode": "single",
+                                    "trial": 1, "seats": [_bot("A", 1)]})  # fmt: skip
+                await ws.send_json({"type": "ready"})
+                for _ in range(25):
+                    await _until(ws, "frame")
+                proc.send_signal(signal.SIGTERM)
+                return await _until(ws, "end")
+
+        end = _run(go())
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert end["reason"] == "server_stop"
+    tr = load_trial(tmp_path / end["file"])
+    assert tr.attrs["end"]["reason"] == "server_stop" and tr.time.size == end["samples"] >= 25

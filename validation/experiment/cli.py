@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 
@@ -88,8 +89,12 @@ def cmd_serve(a: argparse.Namespace) -> int:
             ) from None
         print(f"cip-validate experiment: open {url}", flush=True)
         print(f"recordings go to {out.resolve()}; Ctrl-C stops the server", flush=True)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):  # finalise running trials, then exit
+            loop.add_signal_handler(sig, stop.set)
         try:
-            await asyncio.Event().wait()
+            await stop.wait()
         finally:
             await runner.cleanup()
 
