@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reduced.schema import Trajectory
+from reduced import Trajectory
 from validation import metrics
 
 from .recording import find_trials, load_trial

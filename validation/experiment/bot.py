@@ -22,8 +22,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from reduced.noise import random_gain
-from reduced.params import BalanceParams, ParameterError, check_count, whole_steps
+from reduced import BalanceParams, ParameterError, random_gain
+from reduced.params import check_count, whole_steps
 
 from .screen import to_pixel
 

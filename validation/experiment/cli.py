@@ -10,7 +10,8 @@ import signal
 import sys
 from pathlib import Path
 
-from reduced.params import ParameterError, check_count, check_positive
+from reduced import ParameterError
+from reduced.params import check_count, check_positive
 
 from .task import DURATION, ENGINES, TaskSettings
 

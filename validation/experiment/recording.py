@@ -8,7 +8,7 @@ The first line is the metadata header, the last (when the trial ends
 normally, by time, out of range, abort or disconnect) the end record.
 
 :meth:`Recorder.finalize` then writes ``<stem>.npz`` in the suite's schema
-(:class:`reduced.schema.Trajectory`: fields shaped (1, samples, sticks);
+(:class:`reduced.Trajectory`: fields shaped (1, samples, sticks);
 ``tip_position``, ``tip_velocity``, ``base_position``, ``base_velocity``,
 ``balancing_error``, ``balancing_error_velocity``) plus ``mouse_pixel``
 (raw pixels), ``frame_jitter`` and ``wall_time`` (s), with the header and
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from reduced.schema import Trajectory
+from reduced import Trajectory
 
 from .trial import Sample
 
@@ -203,7 +203,7 @@ def make_header(
 
     ``seats`` describes each seat (``{"kind": "human"}`` or a bot's settings);
     ``dt`` and ``decimate`` give the sample interval dt * decimate (s) as in
-    :class:`reduced.schema.Trajectory`.
+    :class:`reduced.Trajectory`.
     """
     return {
         "mode": settings_dict["mode"],

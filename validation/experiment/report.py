@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reduced.schema import Trajectory
+from reduced import Trajectory
 from validation import metrics
 from validation.report import html_report, jsonable
 

@@ -43,7 +43,8 @@ from typing import Protocol
 
 import numpy as np
 
-from reduced.params import BalanceParams, ParameterError, check_choice, check_positive, whole_steps
+from reduced import BalanceParams, ParameterError
+from reduced.params import check_choice, check_positive, whole_steps
 
 MODES = ("single", "coupled")
 #: Paper section 4.1: alpha = beta = 21, gamma = 50, rod length l = 1.
