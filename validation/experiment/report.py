@@ -106,8 +106,10 @@ def fig_move(picks, mode: str, path: Path) -> Path:
             for lo, hi, slope in ((fit.fmin, fit.crossover, fit.slope_low),
                                   (fit.crossover, fit.fmax, fit.slope_high)):  # fmt: skip
                 ff = np.geomspace(lo, hi, 20)
-                k = np.argmin(np.abs(f - fit.crossover))
-                ax[1, j].loglog(ff, s[k] * (ff / f[k]) ** slope, "--", lw=1.8,
+                # anchored at the mean log spectrum within a factor 1.5 of the crossover
+                near = (f > fit.crossover / 1.5) & (f < fit.crossover * 1.5)
+                s_c = 10 ** np.mean(np.log10(s[near])) if near.any() else np.nan
+                ax[1, j].loglog(ff, s_c * (ff / fit.crossover) ** slope, "--", lw=1.8,
                                 label=f"slope {slope:.2f}")  # fmt: skip
             ax[1, j].legend(fontsize=8)
         else:
