@@ -18,6 +18,7 @@ from cipcore.params import ParameterError
 from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
 from .cmd_engines import add_engines_command
 from .commands import analysis, simulation, suite, sweeping, viewing
+from .experiment import cli as experiment_cli
 
 __all__ = ["EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
 
@@ -47,6 +48,7 @@ def build_parser() -> CLIParser:
     sweeping.register(sub)
     viewing.register(sub)
     add_engines_command(sub)
+    experiment_cli.register(sub)
     return parser
 
 

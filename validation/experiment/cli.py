@@ -1,0 +1,158 @@
+"""``cip-validate experiment serve | analyze | bots``: the paper's experiment (section 4)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from cipcore import ParameterError
+from cipcore.params import check_count, check_positive
+
+from .task import DURATION, ENGINES, TaskSettings
+
+
+def _port(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise ParameterError(f"--port must be an integer in [0, 65535], got {text!r}") from None
+    if not 0 <= v <= 65535:
+        raise ParameterError(f"--port must be an integer in [0, 65535], got {v}")
+    return v
+
+
+def register(subparsers) -> None:
+    """Add ``experiment`` and its subcommands to the ``cip-validate`` parser."""
+    p = subparsers.add_parser("experiment", help="the paper's experiment: serve, analyze, bots")
+    sub = p.add_subparsers(dest="experiment_command", metavar="SUBCOMMAND")
+    sub.required = True
+
+    s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    s.add_argument("--port", default="8050", help="0 picks a free port")
+    s.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
+    s.add_argument("--out", default="experiment-data", help="directory of the recordings")
+    s.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
+    s.add_argument("--countdown", type=int, default=3, help="seconds before a trial")
+    s.set_defaults(func=cmd_serve)
+
+    a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau")
+    a.add_argument("dir", help="directory of recordings")
+    a.add_argument("--out", default=None, help="report directory (default DIR/analysis)")
+    a.add_argument("--no-figures", action="store_true")
+    a.set_defaults(func=cmd_analyze)
+
+    b = sub.add_parser("bots", help="bot-vs-bot trials at full speed, no browser")
+    b.add_argument("--out", default="experiment-bots", help="directory of the recordings")
+    b.add_argument("--mode", choices=("single", "coupled", "both"), default="both")
+    b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
+    b.add_argument("--trials", type=int, default=5, help="trials per subject and mode")
+    b.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
+    b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
+    b.add_argument("--tau", type=float, default=0.1, help="bot delay (s)")
+    b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
+    b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws")
+    b.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
+    b.set_defaults(func=cmd_bots)
+
+
+def cmd_serve(a: argparse.Namespace) -> int:
+    a.port = _port(a.port)
+    check_positive("--trial-duration", a.trial_duration)
+    check_count("--countdown", a.countdown, minimum=0)
+    try:
+        from .server import ServerConfig, start
+    except ImportError as exc:
+        raise ParameterError(
+            f"the experiment server needs aiohttp ({exc}); pip install 'cipval[experiment]'"
+        ) from None
+    TaskSettings(duration=a.trial_duration)  # validates
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    logging.basicConfig(
+        level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s",
+        handlers=[logging.StreamHandler(sys.stderr), logging.FileHandler(out / "server.log")],
+    )  # fmt: skip
+    config = ServerConfig(out_dir=out, engine=a.engine, duration=a.trial_duration,
+                          countdown=a.countdown)  # fmt: skip
+
+    async def main() -> None:
+        try:
+            runner, url, _ = await start(config, a.host, a.port)
+        except OSError as exc:
+            raise ParameterError(
+                f"--host/--port: cannot listen on {a.host}:{a.port}: {exc}"
+            ) from None
+        print(f"cip-validate experiment: open {url}", flush=True)
+        print(f"recordings go to {out.resolve()}; Ctrl-C stops the server", flush=True)
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):  # finalise running trials, then exit
+            loop.add_signal_handler(sig, stop.set)
+        try:
+            await stop.wait()
+        finally:
+            await runner.cleanup()
+
+    try:
+        asyncio.run(main())
+    except KeyboardInterrupt:
+        pass
+    return 0
+
+
+def _labels(text: str) -> list[str]:
+    from .protocol import LABEL
+
+    labels = [x.strip() for x in text.split(",")]
+    if len(labels) != 2 or not all(LABEL.match(x) for x in labels) or labels[0] == labels[1]:
+        raise ParameterError(f"--subjects must be two different labels like A,B; got {text!r}")
+    return labels
+
+
+def cmd_bots(a: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .bot import BotSpec
+    from .headless import run_bot_trial
+
+    labels = _labels(a.subjects)
+    trials = check_count("--trials", a.trials)
+    check_count("--seed", a.seed, minimum=0)
+    modes = ("single", "coupled") if a.mode == "both" else (a.mode,)
+    # one independent stream per (mode, trial, subject), fixed by --seed
+    seeds = iter(np.random.SeedSequence(a.seed).generate_state(2 * trials * 2 * len(modes)))
+    out = Path(a.out)
+    done = []
+    for mode in modes:
+        settings = TaskSettings(mode=mode, duration=a.trial_duration)
+        for k in range(1, trials + 1):
+            groups = [[x] for x in labels] if mode == "single" else [labels]
+            for group in groups:
+                specs = [BotSpec(a.beta, a.tau, a.nu, int(next(seeds))) for _ in group]
+                path = run_bot_trial(settings, specs, group, k, out, engine=a.engine)
+                done.append(path)
+                print(f"{path}", flush=True)
+    print(json.dumps({"trials": len(done), "out": str(out)}))
+    return 0
+
+
+def cmd_analyze(a: argparse.Namespace) -> int:
+    from .recording import find_trials
+    from .report import write_report
+
+    d = Path(a.dir)
+    if not d.is_dir():
+        raise ParameterError(f"DIR must be a directory of recordings, got {a.dir!r}")
+    if not find_trials(d):
+        raise ParameterError(f"DIR {a.dir!r} holds no recordings (*.jsonl / *.npz)")
+    out = Path(a.out) if a.out else d / "analysis"
+    paths = write_report(d, out, figures=not a.no_figures)
+    for p in paths:
+        print(p)
+    return 0

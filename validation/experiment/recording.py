@@ -1,0 +1,221 @@
+"""Recordings that are never lost: append-only JSON lines, then one ``.npz`` per trial.
+
+While a trial runs, :class:`Recorder` appends one JSON line per 20 ms sample to
+``<stem>.jsonl`` and flushes it to the operating system at once (a killed
+server process loses nothing the OS has; a crash of the machine loses at most
+the last second, because the file is ``fsync``-ed at least once a second).
+The first line is the metadata header, the last (when the trial ends
+normally, by time, out of range, abort or disconnect) the end record.
+
+:meth:`Recorder.finalize` then writes ``<stem>.npz`` in the suite's schema
+(:class:`reduced.Trajectory`: fields shaped (1, samples, sticks);
+``tip_position``, ``tip_velocity``, ``base_position``, ``base_velocity``,
+``balancing_error``, ``balancing_error_velocity``) plus ``mouse_pixel``
+(raw pixels), ``frame_jitter`` and ``wall_time`` (s), with the header and
+the end record as attributes.  :func:`load_trial` reads either file, so an
+unfinalised (killed) trial is still analysable.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cipcore import Trajectory
+
+from .trial import Sample
+
+FORMAT = "cipval-experiment-1"
+#: fsync at least this often (s)
+FSYNC_INTERVAL = 1.0
+FIELDS = ("tip_position", "tip_velocity", "base_position", "base_velocity")
+
+
+def _json(obj: Any) -> str:
+    def fix(v: Any) -> Any:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: fix(x) for k, x in v.items()}
+        if isinstance(v, list | tuple):
+            return [fix(x) for x in v]
+        if isinstance(v, np.generic):
+            return fix(v.item())
+        return v
+
+    return json.dumps(fix(obj), separators=(",", ":"))
+
+
+class Recorder:
+    """Append samples of one trial to ``<stem>.jsonl`` (module docstring)."""
+
+    def __init__(self, stem: Path, header: dict) -> None:
+        self.stem = Path(stem)
+        self.stem.parent.mkdir(parents=True, exist_ok=True)
+        self.path = self.stem.with_suffix(".jsonl")
+        self._f = open(self.path, "x", encoding="utf-8")  # kept open for the trial
+        self.header = {"format": FORMAT, **header}
+        self._write({"header": self.header})
+        self._sync()
+        self.n_samples = 0
+
+    def _write(self, obj: dict) -> None:
+        self._f.write(_json(obj) + "\n")
+        self._f.flush()
+
+    def _sync(self) -> None:
+        os.fsync(self._f.fileno())
+        self._last_sync = time.monotonic()
+
+    def append(self, sample: Sample) -> None:
+        """Write one sample; fsync when the last one is FSYNC_INTERVAL old."""
+        self._write(sample.as_dict())
+        self.n_samples += 1
+        if time.monotonic() - self._last_sync >= FSYNC_INTERVAL:
+            self._sync()
+
+    def finalize(self, end: dict) -> Path:
+        """Write the end record, close the log and write ``<stem>.npz``; returns its path."""
+        if not self._f.closed:
+            self._write({"end": end})
+            self._sync()
+            self._f.close()
+        traj = load_jsonl(self.path)
+        out = self.stem.with_suffix(".npz")
+        tmp = self.stem.with_suffix(".npz.part")
+        with open(tmp, "wb") as f:
+            np.savez(
+                f, time=traj.time, **traj.data,
+                attrs=np.array(json.dumps(traj.attrs, default=_default)),
+            )  # fmt: skip
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, out)
+        return out
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def load_jsonl(path: Path) -> Trajectory:
+    """Read a (possibly unfinalised or truncated) ``.jsonl`` recording as a Trajectory.
+
+    A last line cut off by a kill is ignored; without an end record the
+    trial's ``end`` attribute is ``{"reason": "unfinalised"}``.
+    """
+    header: dict | None = None
+    end: dict | None = None
+    rows: list[dict] = []
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            try:
+                obj = json.loads(line)
+            except json.JSONDecodeError:
+                continue  # a line cut off by a kill
+            if "header" in obj:
+                header = obj["header"]
+            elif "end" in obj:
+                end = obj["end"]
+            else:
+                rows.append(obj)
+    if header is None:
+        raise ValueError(f"{path}: no header line; not a cipval experiment recording")
+    n = len(header["subjects"])
+    data = {
+        name: np.array([[r[name] for r in rows]], dtype=float).reshape(1, len(rows), n)
+        for name in FIELDS
+    }
+    data["balancing_error"] = data["tip_position"] - data["base_position"]
+    data["balancing_error_velocity"] = data["tip_velocity"] - data["base_velocity"]
+    data["mouse_pixel"] = np.array(
+        [[[math.nan if p is None else p for p in r["pixel"]] for r in rows]], dtype=float
+    ).reshape(1, len(rows), n)
+    for name, key in (("frame_jitter", "jitter"), ("wall_time", "wall")):
+        data[name] = np.array(
+            [[math.nan if r[key] is None else r[key] for r in rows]], dtype=float
+        ).reshape(1, len(rows), 1)
+    time_ = np.array([r["t"] for r in rows], dtype=float)
+    frames = np.array([r["k"] for r in rows], dtype=int)
+    attrs = {
+        **header,
+        "end": end if end is not None else {"reason": "unfinalised"},
+        "first_frame": int(frames[0]) if len(frames) else 0,
+        "missing_frames": int(np.count_nonzero(np.diff(frames) != 1)) if len(frames) else 0,
+        "source": str(path),
+    }
+    return Trajectory(time=time_, data=data, attrs=attrs)
+
+
+def load_trial(path: str | Path) -> Trajectory:
+    """Load one trial: its ``.npz`` when finalised, else its ``.jsonl`` log."""
+    path = Path(path)
+    npz = path.with_suffix(".npz")
+    if path.suffix in (".npz", ".jsonl") and npz.exists():
+        return Trajectory.load_npz(npz)
+    return load_jsonl(path.with_suffix(".jsonl"))
+
+
+def find_trials(directory: str | Path) -> list[Path]:
+    """Every trial under ``directory`` (one path per stem, .npz preferred), sorted."""
+    d = Path(directory)
+    stems = sorted({p.with_suffix("") for p in d.rglob("*.jsonl")} |
+                   {p.with_suffix("") for p in d.rglob("*.npz")})  # fmt: skip
+    out = []
+    for s in stems:
+        npz = s.with_suffix(".npz")
+        out.append(npz if npz.exists() else s.with_suffix(".jsonl"))
+    return out
+
+
+def versions() -> dict[str, str]:
+    """Versions of the software that produced a recording."""
+    import importlib.metadata as md
+    import platform
+
+    out = {"python": platform.python_version()}
+    for pkg in ("cipval", "numpy", "aiohttp", "mujoco"):
+        try:
+            out[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            pass
+    return out
+
+
+def make_header(
+    settings_dict: dict,
+    engine: str,
+    subjects: list[str],
+    seats: list[dict],
+    trial_index: int,
+    session: str,
+    substeps: int,
+) -> dict:
+    """The metadata header of a recording.
+
+    ``seats`` describes each seat (``{"kind": "human"}`` or a bot's settings);
+    ``dt`` and ``decimate`` give the sample interval dt * decimate (s) as in
+    :class:`reduced.Trajectory`.
+    """
+    return {
+        "mode": settings_dict["mode"],
+        "engine": engine,
+        "subjects": list(subjects),
+        "pair": list(subjects) if len(subjects) == 2 else None,
+        "seats": seats,
+        "trial_index": int(trial_index),
+        "session": session,
+        "settings": settings_dict,
+        "dt": settings_dict["params"]["dt"],
+        "decimate": int(substeps),
+        "start_time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "versions": versions(),
+    }
