@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -94,7 +95,11 @@ def run_sweep(
 
 
 def _run_local(workers: int, sd: dict, todo: list[dict], finished) -> None:
-    pool = ProcessPoolExecutor(max_workers=workers)
+    # forkserver, not fork: forking a process that has loaded a multithreaded
+    # runtime (JAX/XLA for mjx, warp) can deadlock the child
+    pool = ProcessPoolExecutor(
+        max_workers=workers, mp_context=multiprocessing.get_context("forkserver")
+    )
     try:
         futs = {pool.submit(evaluate_point, sd, p, 1): p for p in todo}
         pending = set(futs)
