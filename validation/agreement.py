@@ -7,13 +7,16 @@ tolerances follow the rules in :mod:`validation.stats`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from cip.lyapunov import lyapunov_full
 from cip.model import small_angle_limit
-from cip.simulate import simulate_full
+from cip.simulate import DivergenceWarning, simulate_full
+from cipcore.models import get_model
+from cipcore.params import ParameterError
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 
@@ -422,3 +425,196 @@ def rod_length_study(
                 row[metric + "_ci95"] = float(h.sel(sel))
         rows.append(row)
     return checks, rows, ds
+
+
+# ------------------------------------------------------------------ the exact twin
+#: Initial balancing error (m) of the twin comparison: small enough that the
+#: terms the twin leaves out (second order in the angles) stay below 1e-10, large
+#: enough that the rod's absolute round-off (~1e-17 m) stays below it too.
+TWIN_AMPLITUDE = 1e-6
+TWIN_WINDOW = 10.0  # s
+#: Largest relative L2 distance of the balancing errors, full vs twin.  Measured
+#: floor at 1e-6 m over 10 s (MuJoCo 4.0.0, x86-64, seed 1, 4 realisations):
+#: 2.3e-11 (single), 1.9e-11 (coupled), set by the angles' second-order terms
+#: (it scales as the amplitude squared: 2.3e-9 at 1e-5 m) and, for the coupled
+#: model, the rod's absolute round-off (1.5e-9 at 1e-8 m).  The tolerance is that
+#: floor times 40: a round-off difference between platforms stays far inside it.
+TWIN_TOLERANCE = 1e-9
+#: Largest relative L2 distance of the rod's stretch (tip 1 minus tip 2), full vs
+#: twin; measured floor 6.0e-5 at 1e-6 m (seed 1, 4 realisations): the stretch,
+#: ~5e-13 m, is computed by MuJoCo from a tendon length of ~1 m whose round-off
+#: (~1e-16 m) sets that floor; tolerance about 17 times the floor.
+ROD_TOLERANCE = 1e-3
+
+
+def model_file(model: str, files: dict[str, str] | None = None):
+    """The compiled model file of ``model`` (a user's ``--mjcf`` or the shipped one)."""
+    from cip.mjcf_params import load_model_file, shipped_model_path
+
+    return load_model_file((files or {}).get(model) or shipped_model_path(model))
+
+
+def _relative_l2(a: np.ndarray, b: np.ndarray) -> float:
+    k = min(a.shape[1], b.shape[1])
+    den = np.linalg.norm(b[:, :k])
+    return float(np.linalg.norm(a[:, :k] - b[:, :k]) / den) if den > 0 else float("inf")
+
+
+def measured_delay(model: str, params: BalanceParams, physical, mj_model, backend=None) -> int:
+    """The engine's delay in steps, read from its response (no noise).
+
+    The balancing error's history is zero before t = 0 and ``TWIN_AMPLITUDE`` at
+    t = 0: a step.  The run with the controller and one without it (beta = 0)
+    start from the same state; the first step after which the carts' velocities
+    differ is the first step whose control force is non-zero, the delay.
+    Returns -1 if no force appears within three delays.
+    """
+    from cip.runner import CIPRunner
+
+    vels = []
+    for beta in (params.beta, 0.0):
+        p = replace(params, beta=beta, nu=0.0)
+        r = CIPRunner(
+            model, p, physical, 1, TWIN_AMPLITUDE, threads=1, backend=backend, mj_model=mj_model
+        )
+        r.e_hist[:] = 0.0
+        r.edot_hist[:] = 0.0
+        chunks = [r.advance(np.zeros((1, r.d, r.nc)))[0][:, r.i_vx] for _ in range(3)]
+        vels.append(np.concatenate(chunks))
+    moved = np.flatnonzero(np.abs(vels[0] - vels[1]).max(axis=1) > 0)
+    return int(moved[0]) if moved.size else -1
+
+
+def instrument_checks(
+    seed: int,
+    n_realizations: int,
+    threads: int | None = None,
+    *,
+    files: dict[str, str] | None = None,
+    fault=None,
+    models: tuple[str, ...] = ("single", "coupled"),
+) -> list[Check]:
+    """Full model vs its exact twin, the delay, the rod, the declared model (issue 9).
+
+    ``files`` maps a model to a user's MJCF (default: the shipped files);
+    ``fault`` a :class:`validation.faults.Fault` injected into the engine only.
+    """
+    from cip.mjcf_params import read_mapping
+    from reduced.twin import TwinParams, simulate_twin
+
+    checks = []
+    for model in models:
+        m = model_file(model, files)
+        mp = read_mapping(m)
+        if mp.model != model:
+            raise ParameterError(f"--mjcf: the file for {model!r} describes a {mp.model} model")
+        p = BalanceParams(beta=PAPER_BETA[model])
+        declared = {
+            "timestep": (mp.timestep, p.dt),
+            "alpha": (mp.alpha, p.alpha),
+            "gamma_tip": (mp.tip_damping, p.gamma),
+            "gamma_cart": (mp.cart_damping, p.gamma),
+        }
+        ok = all(abs(a - b) <= 1e-12 * abs(b) for a, b in declared.values())
+        ok = ok and mp.integrator == "Euler"
+        checks.append(
+            Check(
+                name=f"model.declared.{model}",
+                status=PASS if ok else FAIL,
+                values={k: {"model": a, "controller": b} for k, (a, b) in declared.items()}
+                | {"integrator": mp.integrator},
+                tolerance="time step, g/L and dampings of the model file equal the "
+                "controller's dt, alpha, gamma to 1e-12 relative; integrator Euler (the "
+                "reduced model's stepper)",
+                details=f"mapping read from the model file ({mp.model}, m/M = {mp.mass_ratio:g})",
+            )
+        )
+        if not ok:
+            continue  # the engine would run another model than the controller assumes
+        phys = mp.physical()
+        twin_p = TwinParams(**mp.twin_terms())
+        pe, backend = p, None
+        noise = None
+        n_steps = round(TWIN_WINDOW / p.dt)
+        if fault is not None:
+            pe, backend = fault.engine_params(p), fault.backend()
+            noise = fault.noise(seed, n_realizations, get_model(model).n_controllers, n_steps)
+        kw = {"amplitude": TWIN_AMPLITUDE, "threads": threads}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DivergenceWarning)
+            full = simulate_full(
+                model,
+                pe,
+                TWIN_WINDOW,
+                n_realizations,
+                seed,
+                physical=phys,
+                mj_model=m,
+                backend=backend,
+                noise=noise,
+                fields=("balancing_error", "tip_position"),
+                **kw,
+            )
+        twin = simulate_twin(
+            model,
+            p,
+            twin_p,
+            TWIN_WINDOW,
+            n_realizations,
+            seed,
+            fields=("balancing_error", "tip_position"),
+            **kw,
+        )
+        ef, et = full["balancing_error"], twin["balancing_error"]
+        complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
+        rel = _relative_l2(ef, et)
+        details = (
+            f"amplitude {TWIN_AMPLITUDE:g} m, {n_realizations} x {TWIN_WINDOW:g} s, "
+            f"seed {seed}, same noise"
+        )
+        checks.append(
+            Check(
+                name=f"twin.trajectory.{model}",
+                status=PASS if complete and rel <= TWIN_TOLERANCE else FAIL,
+                values={"relative_l2": rel, "complete": complete},
+                tolerance=f"relative L2 distance of the balancing errors to the exact linear twin "
+                f"<= {TWIN_TOLERANCE:g} (measured floor 2e-11; agreement.TWIN_TOLERANCE)",
+                details=details,
+            )
+        )
+        if mp.n_controllers == 2:
+            sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
+            st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
+            rel_rod = _relative_l2(sf, st)
+            k = min(sf.shape[1], st.shape[1])
+            nf, nt = np.linalg.norm(sf[:, :k]), np.linalg.norm(st[:, :k])
+            implied = twin_p.rod_stiffness * nt / nf if nf > 0 else float("inf")
+            checks.append(
+                Check(
+                    name=f"twin.rod.{model}",
+                    status=PASS if complete and rel_rod <= ROD_TOLERANCE else FAIL,
+                    values={
+                        "stretch_relative_l2": rel_rod,
+                        "stretch_rms_m": float(nf / np.sqrt(sf[:, :k].size)),
+                        "implied_stiffness": implied,
+                        "twin_stiffness": twin_p.rod_stiffness,
+                    },
+                    tolerance="the rod's stretch (tip 1 - tip 2) matches the twin's soft "
+                    f"constraint to relative L2 <= {ROD_TOLERANCE:g}; implied stiffness "
+                    "k_twin |d_twin| / |d_full|",
+                    details=details,
+                )
+            )
+        expected = round(p.tau / m.opt.timestep)
+        got = measured_delay(model, pe, phys, m, backend)
+        checks.append(
+            Check(
+                name=f"delay.{model}",
+                status=PASS if got == expected else FAIL,
+                values={"measured_steps": got, "expected_steps": expected},
+                tolerance="a step in the balancing error reaches the control force exactly "
+                "tau / timestep steps later (timestep read from the model file)",
+                details=f"tau {p.tau:g} s, model timestep {m.opt.timestep:g} s, no noise",
+            )
+        )
+    return checks

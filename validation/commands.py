@@ -97,6 +97,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_linearize)
     add_run_commands(sub)
     add_sweep_commands(sub)
+    from validation.selftest import register_selftest
+
+    register_selftest(sub)
 
     p = sub.add_parser("simulate", help="time series of either engine to a .npz file")
     _model_args(p)
