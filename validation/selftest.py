@@ -63,7 +63,9 @@ def smallest_detectable(kind: str, seed: int, n_realizations: int, iterations: i
     if not flagged_by(make_fault(kind, identity + sign * hi), seed, n_realizations):
         return {"fault": kind, "smallest_flagged": None, "note": "catalogue size not flagged"}
     if flagged_by(make_fault(kind, identity + sign * lo), seed, n_realizations):
-        return {"fault": kind, "smallest_flagged": identity + sign * lo, "note": "at the floor"}
+        unit = make_fault(kind, size).unit
+        return {"fault": kind, "smallest_flagged": identity + sign * lo, "deviation": lo,
+                "unit": unit, "note": "flagged down to the bisection's floor"}  # fmt: skip
     for _ in range(iterations):
         mid = math.sqrt(hi * lo)
         if flagged_by(make_fault(kind, identity + sign * mid), seed, n_realizations):
@@ -74,6 +76,7 @@ def smallest_detectable(kind: str, seed: int, n_realizations: int, iterations: i
         "fault": kind,
         "smallest_flagged": identity + sign * hi,
         "largest_missed": identity + sign * lo,
+        "deviation": hi,
         "unit": make_fault(kind, size).unit,
     }
 
@@ -109,13 +112,17 @@ def cmd_selftest(a: argparse.Namespace) -> int:
     else:
         print(format_table(clean, rows))
         if power:
-            print("\nsmallest flagged size per fault type (geometric bisection):")
+            print(
+                "\nsmallest flagged deviation from the unmodified model per fault type "
+                "(geometric bisection):"
+            )
             for p in power:
-                v = p["smallest_flagged"]
-                print(
-                    f"  {p['fault']:<24} {'-' if v is None else f'{v:.3g}':>10}  "
-                    f"{p.get('note', 'missed at ' + format(p.get('largest_missed'), '.3g'))}"
-                )
+                if p.get("deviation") is None:
+                    print(f"  {p['fault']:<24} {p['smallest_flagged']!s:>10}  {p['note']}")
+                    continue
+                note = p.get("note") or f"(missed at {p['largest_missed']:.4g})"
+                print(f"  {p['fault']:<24} {p['smallest_flagged']:>10.4g}  deviation "
+                      f"{p['deviation']:.3g} {p['unit']} {note}")  # fmt: skip
         print(f"\nselftest {'passes' if ok else 'FAILS'}: {sum(r['flagged'] for r in rows)} of "
               f"{len(rows)} faults flagged, {time.perf_counter() - t:.1f} s (seed {a.seed}, "
               f"{a.realizations} realisations)")  # fmt: skip
