@@ -225,3 +225,14 @@ def read_mapping(m: mujoco.MjModel) -> ModelMapping:
         solimp=solimp,
         rod_invweight0=invw,
     )
+
+
+def model_files(paths: list[str] | None) -> dict[str, str]:
+    """``--mjcf`` paths by the model each describes; one-line errors before any run."""
+    out: dict[str, str] = {}
+    for path in paths or []:
+        mp = read_mapping(load_model_file(path))
+        if mp.model in out:
+            raise ParameterError(f"--mjcf: two files describe the {mp.model} model")
+        out[mp.model] = str(path)
+    return out

@@ -154,13 +154,22 @@ def cmd_run(a: argparse.Namespace) -> int:
         )
     if a.workers is not None and a.workers < 1:
         raise ParameterError(f"--workers must be an integer >= 1, got {a.workers}")
+    from cip.mjcf_params import model_files
+    from validation.baseline import choose_mode
+    from validation.report import jsonable
+
+    files = model_files(a.mjcf)
     out = Path(a.out)
     results = run_validation(_profile(a.profile), out, workers=a.workers, progress=True,
-                             figures=not a.no_figures)  # fmt: skip
-    regression = compare_with_baseline(results, baseline) if baseline else None
+                             figures=not a.no_figures, model_files=files)  # fmt: skip
+    regression = None
+    if baseline:
+        mode, why = choose_mode(jsonable(results), baseline, a.baseline_mode)
+        regression = compare_with_baseline(results, baseline, mode)
     if regression:
         failed = [c for c in regression if c.status == "fail"]
         results["regression"] = {"baseline": str(a.baseline), "checked": len(regression),
+                                 "mode": mode, "mode_reason": why,
                                  "failed": [c.as_dict() for c in failed]}  # fmt: skip
         if failed:
             results["status"] = "fail"
@@ -168,8 +177,12 @@ def cmd_run(a: argparse.Namespace) -> int:
     print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
     if regression is not None:
         nfail = sum(c.status == "fail" for c in regression)
-        print(f"regression vs {a.baseline}: {len(regression) - nfail} of {len(regression)} "
-              "numbers unchanged within 4 combined standard errors")  # fmt: skip
+        print(f"regression vs {a.baseline} ({mode} mode: {why}): "
+              f"{len(regression) - nfail} of {len(regression)} numbers unchanged")  # fmt: skip
+        for c in regression:
+            if c.status == "fail":
+                print(f"  moved: {c.name.removeprefix('regression.')}: "
+                      f"{c.values.get('baseline')} -> {c.values.get('value')}")  # fmt: skip
     print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'results.json'}")
     return 1 if results["status"] == "fail" else 0
 
@@ -201,6 +214,11 @@ def add_run_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--profile", choices=("quick", "paper", "smoke"), default="quick")
     p.add_argument("--out", default="cip-validate-out", metavar="DIR")
     p.add_argument("--baseline", metavar="FILE", help="results.json to compare with")
+    p.add_argument("--baseline-mode", choices=("auto", "exact", "statistical"), default="auto",
+                   help="exact: every number to 1e-12; statistical: paired tolerances; "
+                   "auto: exact when versions and platform match")  # fmt: skip
+    p.add_argument("--mjcf", action="append", metavar="PATH",
+                   help="a user's CIP model file (repeat for single and coupled)")  # fmt: skip
     p.add_argument("--workers", type=int, default=None, help="threads (default: all cores)")
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     p.set_defaults(func=cmd_run)

@@ -48,9 +48,13 @@ def package_versions() -> dict[str, str]:
 
 def run_validation(
     profile: Profile, out_dir: Path, workers: int | None = None, progress: bool = True,
-    figures: bool = True,
+    figures: bool = True, model_files: dict[str, str] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """Run every stage; returns the results dictionary written to results.json."""
+    """Run every stage; returns the results dictionary written to results.json.
+
+    ``model_files`` maps "single" / "coupled" to a user's MJCF (``--mjcf``) run
+    instead of the shipped ``models/cip_<model>.xml``.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     stages = ["lambda1 agreement", "time-series agreement", "amplitude scan",
@@ -72,10 +76,10 @@ def run_validation(
         c, d = agreement.lyapunov_checks(profile, workers)
         checks += c
     with stage("time-series agreement"):
-        c, series = agreement.series_checks(profile, workers)
+        c, series = agreement.series_checks(profile, workers, files=model_files)
         checks += c
     with stage("amplitude scan"):
-        c, scan_rows = agreement.amplitude_scan(profile, workers)
+        c, scan_rows = agreement.amplitude_scan(profile, workers, files=model_files)
         checks += c
     with stage("critical gains"):
         c, rows, bstar = paper.critical_gains(profile, workers)
@@ -119,6 +123,8 @@ def run_validation(
         "rod_length": rod_rows,
         "figures": [str(p.name) for p in figure_files],
         "versions": package_versions(),
+        "platform": platform.platform(),
+        "model_files": {k: str(v) for k, v in (model_files or {}).items()},
         "workers": workers,
         "timings_s": timings,
         "elapsed_s": round(time.perf_counter() - t0, 1),
