@@ -227,11 +227,20 @@ def read_mapping(m: mujoco.MjModel) -> ModelMapping:
     )
 
 
-def model_files(paths: list[str] | None) -> dict[str, str]:
-    """``--mjcf`` paths by the model each describes; one-line errors before any run."""
+def model_files(paths: list[str] | None, dt: float = 1e-3) -> dict[str, str]:
+    """``--mjcf`` paths by the model each describes; one-line errors before any run.
+
+    ``dt`` is the controller's time step: a model stepping at another one is
+    refused here (the controller's delay tau/dt would not be the engine's).
+    """
     out: dict[str, str] = {}
     for path in paths or []:
         mp = read_mapping(load_model_file(path))
+        if abs(mp.timestep - dt) > 1e-12 * dt:
+            raise ParameterError(
+                f"--mjcf: {str(path)!r} steps at timestep {mp.timestep:g} s, the controller "
+                f'assumes dt = {dt:g} s (set <option timestep="{dt:g}"/>)'
+            )
         if mp.model in out:
             raise ParameterError(f"--mjcf: two files describe the {mp.model} model")
         out[mp.model] = str(path)

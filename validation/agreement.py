@@ -39,10 +39,16 @@ TRAJECTORY_WINDOW = 10.0
 SERIES_FIELDS = ("balancing_error", "balancing_error_velocity", "tip_velocity", "base_velocity")
 
 
-def lyapunov_checks(profile: Profile, threads: int | None) -> tuple[list[Check], dict]:
+def lyapunov_checks(
+    profile: Profile, threads: int | None, files: dict[str, str] | None = None
+) -> tuple[list[Check], dict]:
     """lambda1 of both engines at each gain of the profile (CI-overlap rule)."""
+    from cip.mjcf_params import read_mapping
+
     checks, rows = [], []
     for model, gains in profile.lyapunov_gains.items():
+        m = model_file(model, files)
+        phys = read_mapping(m).physical()
         for beta in gains:
             p = BalanceParams(beta=beta)
             seed = profile.seed_for("lyapunov", model, beta)
@@ -53,7 +59,7 @@ def lyapunov_checks(profile: Profile, threads: int | None) -> tuple[list[Check],
                 "threads": threads,
             }
             red = lyapunov(model, p, **kw)
-            full = lyapunov_full(model, p, **kw)
+            full = lyapunov_full(model, p, physical=phys, mj_model=m, **kw)
             status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
             rows.append(
                 {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}

@@ -73,7 +73,7 @@ def run_validation(
         bar.update(1)
 
     with stage("lambda1 agreement"):
-        c, d = agreement.lyapunov_checks(profile, workers)
+        c, d = agreement.lyapunov_checks(profile, workers, files=model_files)
         checks += c
     with stage("time-series agreement"):
         c, series = agreement.series_checks(profile, workers, files=model_files)
