@@ -79,7 +79,7 @@ def test_mapping_error_names_what_is_missing(tmp_path):
     with pytest.raises(ParameterError, match="no actuator 'cart_damping_1'"):
         read_mapping(load_model_file(f))
     f.write_text(mjcf("single").replace('name="tip_1"', 'name="bob_site"'))
-    with pytest.raises(ParameterError, match="does not compile: .*'tip_1' not found"):
+    with pytest.raises(ParameterError, match=r"does not compile: .*'tip_1' not found"):
         load_model_file(f)
     with pytest.raises(ParameterError, match="no such file"):
         load_model_file(tmp_path / "absent.xml")
@@ -116,3 +116,39 @@ def test_selftest_flags_every_catalogued_fault():
     assert len(rows) == len(CATALOGUE)
     missed = [r["fault"] for r in rows if not r["flagged"]]
     assert missed == []
+
+
+def test_paired_rules_use_the_paired_uncertainty():
+    from validation.stats import needed_realizations, paired_equivalence, paired_shift
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(0, 1, 16)  # the spread across realisations: large
+    known = 0.01 + 1e-3 * rng.normal(size=16)  # what the known terms predict, paired
+    ok = base + known + 1e-4 * rng.normal(size=16)
+    assert paired_equivalence(ok, base, expected=known)[0] == "pass"
+    # a shift 20x the paired resolution but 50x below the spread across realisations fails
+    assert paired_equivalence(ok + 0.02, base, expected=known)[0] == "fail"
+    st, v = paired_equivalence(ok + 0.0005, base, expected=known)
+    assert st == "inconclusive" and v["needed_realizations"] > 16
+    assert needed_realizations(np.full(4, 2.0), 1.0) is None
+    assert paired_shift(base + 1e-12, base, floor=1e-9)[0] == "pass"
+    assert paired_shift(base + 1e-6, base, floor=1e-9)[0] == "fail"
+
+
+def test_baseline_mode_follows_versions_and_platform():
+    from validation.baseline import choose_mode
+
+    a = {"versions": {"mujoco": "4.0.0"}, "platform": "x"}
+    assert choose_mode(a, a)[0] == "exact"
+    b = {"versions": {"mujoco": "3.5.0"}, "platform": "x"}
+    mode, why = choose_mode(a, b)
+    assert mode == "statistical" and "mujoco 3.5.0 -> 4.0.0" in why
+
+
+def test_selftest_cli(capsys):
+    from validation.cli import main
+
+    assert main(["selftest", "--faults", "gravity"]) == 0
+    assert "gravity" in capsys.readouterr().out
+    assert main(["selftest", "--faults", "nonsense"]) == 2
+    assert "unknown fault" in capsys.readouterr().err
