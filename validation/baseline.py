@@ -11,8 +11,9 @@ when nothing changed, so the comparison has two modes:
   version, where round-off differs): numbers carried with a paired standard
   error (``{"value", "se"}``, e.g. the full - reduced paired differences) may
   move by at most :data:`Z_REGRESSION` of those standard errors combined; the
-  distances and residuals (``relative_l2``, the rod's stretch) by at most
-  :data:`DISTANCE_TOLERANCE`; measured delays (steps) not at all.
+  distances and residuals (``relative_l2``) by at most
+  :data:`DISTANCE_TOLERANCE`, the rod's stretch residual (a round-off floor)
+  by at most the rod check's tolerance; measured delays (steps) not at all.
 
 ``mode="auto"`` picks exact when the recorded versions and platform match and
 says which it chose and why.
@@ -31,7 +32,10 @@ EXACT_RTOL = 1e-12
 #: times the twin's tolerance (validation.agreement.TWIN_TOLERANCE), i.e. far
 #: above the round-off differences of a correct engine, far below a fault.
 DISTANCE_TOLERANCE = 1e-8
-DISTANCE_KEYS = ("relative_l2", "stretch_relative_l2")
+#: The rod's stretch vs the twin is itself a round-off floor (6e-5 to 8e-5; it
+#: moved by 2.5e-7 between MuJoCo 4.0.0 and 3.5.0): it may move up to the rod
+#: check's own tolerance (validation.agreement.ROD_TOLERANCE).
+DISTANCE_KEYS = {"relative_l2": DISTANCE_TOLERANCE, "stretch_relative_l2": 1e-3}
 STEP_KEYS = ("measured_steps", "expected_steps")
 MODES = ("auto", "exact", "statistical")
 
@@ -151,8 +155,8 @@ def compare_statistical(results: dict, baseline: dict) -> list[Check]:
         key = name.rsplit(".", 1)[-1]
         v, vb = nall[name], oall[name]
         if key in DISTANCE_KEYS:
-            ok = v is not None and vb is not None and abs(v - vb) <= DISTANCE_TOLERANCE
-            tol = f"statistical mode: distance moves by <= {DISTANCE_TOLERANCE:g} (absolute)"
+            ok = v is not None and vb is not None and abs(v - vb) <= DISTANCE_KEYS[key]
+            tol = f"statistical mode: distance moves by <= {DISTANCE_KEYS[key]:g} (absolute)"
         elif key in STEP_KEYS:
             ok, tol = v == vb, "statistical mode: measured delay in steps unchanged"
         else:
