@@ -77,6 +77,7 @@ def smallest_detectable(kind: str, seed: int, n_realizations: int, iterations: i
         "smallest_flagged": identity + sign * hi,
         "largest_missed": identity + sign * lo,
         "deviation": hi,
+        "missed_deviation": lo,
         "unit": make_fault(kind, size).unit,
     }
 
@@ -120,7 +121,7 @@ def cmd_selftest(a: argparse.Namespace) -> int:
                 if p.get("deviation") is None:
                     print(f"  {p['fault']:<24} {p['smallest_flagged']!s:>10}  {p['note']}")
                     continue
-                note = p.get("note") or f"(missed at {p['largest_missed']:.4g})"
+                note = p.get("note") or f"(missed at deviation {p['missed_deviation']:.3g})"
                 print(f"  {p['fault']:<24} {p['smallest_flagged']:>10.4g}  deviation "
                       f"{p['deviation']:.3g} {p['unit']} {note}")  # fmt: skip
         print(f"\nselftest {'passes' if ok else 'FAILS'}: {sum(r['flagged'] for r in rows)} of "
