@@ -24,7 +24,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import mujoco
 import numpy as np
@@ -50,11 +50,6 @@ class Fault:
     edit_params: Callable[[BalanceParams], BalanceParams] | None = None
     shared_noise: bool = False
     models: tuple[str, ...] = ("single", "coupled")  # the models it applies to
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def label(self) -> str:
-        return f"{self.kind} {self.size:+.4g} {self.unit}".replace("+-", "-")
 
     def engine_params(self, params: BalanceParams) -> BalanceParams:
         return self.edit_params(params) if self.edit_params else params
