@@ -152,3 +152,16 @@ def test_selftest_cli(capsys):
     assert "gravity" in capsys.readouterr().out
     assert main(["selftest", "--faults", "nonsense"]) == 2
     assert "unknown fault" in capsys.readouterr().err
+
+
+def test_run_refuses_a_bad_model_file_before_running(tmp_path, capsys):
+    from validation.cli import main
+
+    f = tmp_path / "dt.xml"
+    f.write_text(mjcf("single", CIPParams(timestep=2e-3)))
+    assert main(["run", "--mjcf", str(f), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "timestep 0.002" in err
+    assert not (tmp_path / "o").exists()
+    assert main(["run", "--mjcf", str(tmp_path / "absent.xml")]) == 2
+    assert "no such file" in capsys.readouterr().err
