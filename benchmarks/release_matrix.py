@@ -91,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
             clean = "clean pass" if not s["clean_failures"] else "clean FAIL"
             selftest = f"{clean}, {flagged}/{len(s['faults'])} flagged"
         except (json.JSONDecodeError, IndexError, KeyError):
-            selftest = "error: " + (st.stderr.strip().splitlines() or ["?"])[-1][:60]
+            errors = [ln for ln in st.stderr.splitlines() if ln.split(":")[0].endswith("Error")]
+            selftest = "error: " + (errors or ["?"])[-1][:40]
         out = root / f"run-{version}"
         rr = _run([str(py), "-m", "validation.cli", "run", "--profile", a.profile, "--no-figures",
                    "--baseline", str(ref), "--out", str(out)], env)  # fmt: skip
