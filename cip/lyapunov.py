@@ -67,13 +67,16 @@ def lyapunov_full(
     threads: int | None = None,
     progress: bool = False,
     backend: type[RolloutBackend] | None = None,
+    mj_model: object = None,
 ) -> LyapunovResult:
     """Largest Lyapunov exponent (1/s) of the MuJoCo CIP about upright.
 
     Same noise draws as :func:`reduced.lyapunov.lyapunov` for the same seed
     (the initial deviation differs: here it is a random small tilt).
     ``epsilon`` (m) is the deviation size kept by renormalisation: small
-    enough for the linear regime (theta ~ epsilon / L).
+    enough for the linear regime (theta ~ epsilon / L).  ``mj_model``: a
+    compiled model file to run instead of the generator's MJCF (as in
+    :func:`cip.simulate.simulate_full`).
     """
     nc = get_model(model).n_controllers
     duration = check_duration(duration)
@@ -95,7 +98,7 @@ def lyapunov_full(
         r = runners.get(block.start)
         if r is None:
             r = runners[block.start] = _start(
-                model, params, physical, block, seed, epsilon, backend
+                model, params, physical, block, seed, epsilon, backend, mj_model
             )
         n = xi.shape[1]
         r.advance(xi)
@@ -124,6 +127,7 @@ def _start(
     seed: int,
     epsilon: float,
     backend: type[RolloutBackend] | None = None,
+    mj_model: object = None,
 ) -> CIPRunner:
     """A runner for realisations ``block`` at a random deviation of norm epsilon.
 
@@ -132,8 +136,9 @@ def _start(
     start equal (on the rod constraint to first order).
     """
     r = CIPRunner(
-        model, params, physical, block.stop - block.start, 0.0, threads=1, backend=backend
-    )
+        model, params, physical, block.stop - block.start, 0.0, threads=1, backend=backend,
+        mj_model=mj_model,
+    )  # fmt: skip
     for j, k in enumerate(range(block.start, block.stop)):
         rng = tangent_rng(seed, k)
         r.state[j, r.i_th] = rng.standard_normal(r.nc) / physical.pendulum_length

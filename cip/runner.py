@@ -113,6 +113,7 @@ class CIPRunner:
         controller: Controller | None = None,
         threads: int | None = None,
         backend: type[RolloutBackend] | None = None,
+        mj_model: mujoco.MjModel | None = None,
     ) -> None:
         self.model_name = model
         self.params = params
@@ -129,7 +130,8 @@ class CIPRunner:
                 f"amplitude must be an initial balancing error |e| < L = {L:.4g} m, "
                 f"got {amplitude!r}"
             )
-        self.m = build(model, physical)
+        # a compiled model file (cip.mjcf_params) or the generator's MJCF of ``physical``
+        self.m = mj_model if mj_model is not None else build(model, physical)
         self.L = L
         self.d = params.delay_steps
         names = [

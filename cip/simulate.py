@@ -63,13 +63,16 @@ def simulate_full(
     progress: bool = False,
     backend: type[RolloutBackend] | None = None,
     engine_name: str = "mujoco",
+    mj_model: object = None,
 ) -> Trajectory:
     """Simulate the full CIP in MuJoCo (see the module docstring).
 
     Parameters as :func:`reduced.simulate.simulate`; ``physical`` defaults to
     :meth:`CIPParams.from_reduced` of ``params`` (L = g/alpha, m/M = 1e-3).
     ``backend`` steps the rigid body (default :class:`cip.runner.MujocoRollout`,
-    MuJoCo on the CPU); ``engine_name`` is recorded in ``attrs["engine"]``.
+    MuJoCo on the CPU); ``engine_name`` is recorded in ``attrs["engine"]``;
+    ``mj_model`` a compiled model file to run instead of the generator's MJCF
+    (``physical`` must then describe it, see :func:`cip.mjcf_params.read_mapping`).
     """
     nc = get_model(model).n_controllers
     duration = check_duration(duration)
@@ -95,7 +98,7 @@ def simulate_full(
         if runner is None:
             runner = runners[block.start] = CIPRunner(
                 model, params, physical, block.stop - block.start, amplitude,
-                controller=controller, threads=1, backend=backend,
+                controller=controller, threads=1, backend=backend, mj_model=mj_model,
             )  # fmt: skip
         n = xi.shape[1]
         before = runner.state

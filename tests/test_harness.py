@@ -51,7 +51,27 @@ def test_baseline_regression_passes_on_itself_and_fails_on_a_moved_number(smoke_
         if c["name"] == "paper.beta_star.single":
             c["values"]["value"] += 10 * c["values"]["se"]
     bad = [c for c in compare_with_baseline(results, moved) if c.status == FAIL]
+    assert [c.name for c in bad] == ["regression.paper.beta_star.single.value"]  # exact mode
+    bad = [c for c in compare_with_baseline(results, moved, "statistical") if c.status == FAIL]
     assert [c.name for c in bad] == ["regression.paper.beta_star.single"]
+    # a round-off move: named in exact mode (old and new value), within statistical tolerances
+    tiny = json.loads(json.dumps(results))
+    for c in tiny["checks"]:
+        if c["name"] == "twin.trajectory.single":
+            c["values"]["relative_l2"] *= 1 + 1e-9
+            moved_to = c["values"]["relative_l2"]
+    bad = [c for c in compare_with_baseline(results, tiny, "exact") if c.status == FAIL]
+    assert [c.name for c in bad] == ["regression.twin.trajectory.single.relative_l2"]
+    assert bad[0].values["baseline"] == moved_to
+    assert all(c.status == PASS for c in compare_with_baseline(results, tiny, "statistical"))
+    # the trajectory distance is in the baseline in both modes (issue 9: 0.28% -> 0.9%)
+    far = json.loads(json.dumps(results))
+    for c in far["checks"]:
+        if c["name"] == "agreement.trajectory.single":
+            c["values"]["relative_l2"] *= 3
+    for mode in ("exact", "statistical"):
+        bad = [c.name for c in compare_with_baseline(results, far, mode) if c.status == FAIL]
+        assert bad == ["regression.agreement.trajectory.single.relative_l2"]
 
 
 def test_baseline_command_and_wrong_baseline_is_usage_error(smoke_run, tmp_path, capsys):

@@ -19,6 +19,7 @@ from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIPars
 from .cmd_engines import add_engines_command
 from .commands import analysis, simulation, suite, sweeping, viewing
 from .experiment import cli as experiment_cli
+from .selftest import register_selftest
 
 __all__ = ["EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
 
@@ -49,6 +50,7 @@ def build_parser() -> CLIParser:
     viewing.register(sub)
     add_engines_command(sub)
     experiment_cli.register(sub)
+    register_selftest(sub)
     return parser
 
 

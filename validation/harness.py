@@ -26,6 +26,7 @@ import hashlib
 import json
 import os
 import pickle
+import platform
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -81,8 +82,9 @@ def compile_note() -> str | None:
             "it adds to the first stage's time)")  # fmt: skip
 
 
-def _run_key(profile: Profile, figures: bool) -> str:
-    key = {"profile": profile.as_dict(), "figures": figures, "versions": package_versions()}
+def _run_key(profile: Profile, figures: bool, model_files: dict[str, str] | None = None) -> str:
+    key = {"profile": profile.as_dict(), "figures": figures, "versions": package_versions(),
+           "model_files": {k: str(v) for k, v in (model_files or {}).items()}}  # fmt: skip
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -131,8 +133,12 @@ def run_validation(
     profile: Profile, out_dir: Path, workers: int | None = None, progress: bool = True,
     figures: bool = True, resume: bool = False,
     on_stage: Callable[[str, float, bool], None] | None = None,
+    model_files: dict[str, str] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Run every stage; returns the results dictionary written to results.json.
+
+    ``model_files`` maps "single" / "coupled" to a user's MJCF (``--mjcf``) run
+    instead of the shipped ``models/cip_<model>.xml``.
 
     After each stage, ``DIR/results.json`` holds everything finished so far
     (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
@@ -142,7 +148,7 @@ def run_validation(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    store = _Stages(out_dir, _run_key(profile, figures), resume)
+    store = _Stages(out_dir, _run_key(profile, figures, model_files), resume)
     bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     done: list[str] = []
@@ -151,11 +157,11 @@ def run_validation(
 
     def compute(name: str) -> Any:
         if name == "lambda1 agreement":
-            return agreement.lyapunov_checks(profile, workers)
+            return agreement.lyapunov_checks(profile, workers, files=model_files)
         if name == "time-series agreement":
-            return agreement.series_checks(profile, workers)
+            return agreement.series_checks(profile, workers, files=model_files)
         if name == "amplitude scan":
-            return agreement.amplitude_scan(profile, workers)
+            return agreement.amplitude_scan(profile, workers, files=model_files)
         if name == "critical gains":
             return paper.critical_gains(profile, workers)
         if name == "lambda1 curve":
@@ -182,7 +188,7 @@ def run_validation(
                 store.save(name, {"value": state[name], "seconds": timings[name]})
             done.append(name)
             bar.update(1)
-            partial = _results(profile, state, timings, workers, t0)
+            partial = _results(profile, state, timings, workers, t0, model_files)
             partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
             write_json(partial, out_dir / "results.json")
             if on_stage:
@@ -191,7 +197,7 @@ def run_validation(
         bar.close()
         raise RunInterrupted(list(done), out_dir) from None
     bar.close()
-    results = _results(profile, state, timings, workers, t0)
+    results = _results(profile, state, timings, workers, t0, model_files)
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     return results
 
@@ -264,7 +270,12 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
 
 
 def _results(
-    profile: Profile, state: dict[str, Any], timings: dict, workers: int | None, t0: float
+    profile: Profile,
+    state: dict[str, Any],
+    timings: dict,
+    workers: int | None,
+    t0: float,
+    model_files: dict[str, str] | None = None,
 ) -> dict[str, Any]:
     """The results dictionary from the stages finished so far (in stage order)."""
     checks, paper_rows = [], []
@@ -303,6 +314,8 @@ def _results(
         "figures": [str(Path(p).name) for p in figure_files],
         "divergence": divergence,
         "versions": package_versions(),
+        "platform": platform.platform(),
+        "model_files": {k: str(v) for k, v in (model_files or {}).items()},
         "workers": workers,
         "timings_s": dict(timings),
         "elapsed_s": round(time.perf_counter() - t0, 1),

@@ -1,12 +1,7 @@
 """Writing results.json, report.md, report.html; comparing with a baseline.
 
-Regression rule (``--baseline FILE``): every number that the results carry
-with a standard error (``{"value": v, "se": s}``) is compared with the same
-number in the baseline; it has moved when |v - v_base| > 4 sqrt(s^2 +
-s_base^2), i.e. beyond four combined standard errors (a false alarm rate
-below 1e-4 per number for Gaussian estimates).  With the same seeds and
-versions the numbers are identical, so any move flags a change in the engine,
-the model or the code.
+The regression rules (``--baseline FILE``, exact or statistical mode) are in
+:mod:`validation.baseline`.
 """
 
 from __future__ import annotations
@@ -21,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from .baseline import compare_with_baseline as baseline_checks
+from .baseline import regression_numbers  # noqa: F401  (moved there; kept importable here)
 from .stats import Check
-
-Z_REGRESSION = 4.0
 
 
 def jsonable(v: Any) -> Any:
@@ -204,40 +199,6 @@ def summary_table(results: dict, regression: list[Check] | None = None) -> str:
 
 
 # ------------------------------------------------------------ regression
-def regression_numbers(results: dict) -> dict[str, tuple[float, float]]:
-    """Every number carried with a standard error, by a dotted path."""
-    out: dict[str, tuple[float, float]] = {}
-
-    def walk(prefix: str, v: Any) -> None:
-        if isinstance(v, dict):
-            if "value" in v and "se" in v and v["value"] is not None and v["se"] is not None:
-                out[prefix] = (float(v["value"]), float(v["se"]))
-            for k, x in v.items():
-                walk(f"{prefix}.{k}", x)
-
-    for c in results["checks"]:
-        walk(c["name"], c["values"])
-    return out
-
-
-def compare_with_baseline(results: dict, baseline: dict) -> list[Check]:
-    """One check per number in both results (rule in the module docstring)."""
-    new = regression_numbers(jsonable(results))
-    old = regression_numbers(baseline)
-    checks = []
-    for name in sorted(set(new) | set(old)):
-        if name not in new or name not in old:
-            checks.append(Check(f"regression.{name}", "fail",
-                                {"value": new.get(name, (None,))[0],
-                                 "baseline": old.get(name, (None,))[0]},
-                                details="number missing on one side"))  # fmt: skip
-            continue
-        (v, s), (vb, sb) = new[name], old[name]
-        sigma = math.hypot(s, sb)
-        z = abs(v - vb) / sigma if sigma > 0 else (0.0 if v == vb else math.inf)
-        checks.append(Check(
-            f"regression.{name}", "pass" if z <= Z_REGRESSION else "fail",
-            {"value": v, "baseline": vb, "sigma": sigma, "z": z},
-            tolerance=f"|value - baseline| <= {Z_REGRESSION:g} combined standard errors",
-        ))  # fmt: skip
-    return checks
+def compare_with_baseline(results: dict, baseline: dict, mode: str = "auto") -> list[Check]:
+    """:func:`validation.baseline.compare_with_baseline` of the run's plain JSON values."""
+    return baseline_checks(jsonable(results), baseline, mode)

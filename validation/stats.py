@@ -8,14 +8,21 @@ Two rules, both stated next to every verdict in the report:
   up to the larger interval), fail when the intervals are disjoint,
   inconclusive in between.
 
-* **Paired equivalence** for per-realisation values of the two models driven
-  by the *same* noise: the margin is the statistical resolution of the
-  metric itself, the 95 % half-width of its mean over realisations
-  (t_{0.975, n-1} s / sqrt(n)).  With d the paired differences and [lo, hi]
-  their 95 % t-interval: pass when [lo, hi] lies inside +-margin (the models
-  differ by less than the metric can resolve), fail when it lies wholly
-  outside, inconclusive otherwise.  This is a two one-sided tests (TOST)
-  equivalence test with a data-derived margin.
+* **Paired equivalence** for per-realisation values of two models driven by
+  the *same* noise: the margin comes from the paired differences, never from
+  the spread of either model across realisations (which is ~100 times wider:
+  the noise realisation dominates every metric, and cancels in the pair).
+  Full vs reduced: the margin is the difference the rigid body's known terms
+  explain (the exact twin minus the reduced model, paired) plus both paired
+  95 % half-widths.  With d the paired differences and [lo, hi] their 95 %
+  t-interval: pass when [lo, hi] lies inside +-margin, fail when it lies
+  wholly outside, inconclusive otherwise, and then the number of realisations
+  the check would need is stated.  A two one-sided tests (TOST) equivalence test.
+
+* **Paired shift** for a number that should be reproduced exactly (the full
+  model against its exact twin, same noise): it fails when the paired mean
+  difference lies outside its own 95 % interval widened by the twin's
+  measured floor.
 """
 
 from __future__ import annotations
@@ -66,21 +73,67 @@ def ci_overlap(m1: float, ci1, m2: float, ci2) -> tuple[str, dict]:
     return status, {"difference": m1 - m2, "half_width_1": h1, "half_width_2": h2}
 
 
-def paired_equivalence(full: np.ndarray, reduced: np.ndarray) -> tuple[str, dict]:
-    """Verdict for per-realisation values under the same noise (module docstring).
+def needed_realizations(d: np.ndarray, margin: float) -> int | None:
+    """Realisations a paired TOST would need to conclude equivalence within +-margin.
 
-    Returns the status and the numbers: mean of each, the paired difference's
-    mean and 95 % interval, and the margin.
+    n with t_{0.975, n-1} s_d / sqrt(n) <= margin - |mean d| (s_d the paired
+    differences' SD, assumed unchanged); None if |mean d| >= margin (no size passes).
+    """
+    from scipy.stats import t as student_t
+
+    d = np.asarray(d, dtype=float)
+    d = d[np.isfinite(d)]
+    room = margin - abs(d.mean())
+    if d.size < 2 or room <= 0:
+        return None
+    s = d.std(ddof=1)
+    if s == 0:
+        return int(d.size)
+    n = max(2, int(np.ceil((1.96 * s / room) ** 2)))
+    while student_t.ppf(0.975, n - 1) * s / np.sqrt(n) > room:
+        n += 1
+    return n
+
+
+def paired_equivalence(
+    full: np.ndarray,
+    reference: np.ndarray,
+    margin: float | None = None,
+    *,
+    expected: np.ndarray | None = None,
+    floor: float = 0.0,
+) -> tuple[str, dict]:
+    """Paired TOST of per-realisation values under the same noise (module docstring).
+
+    With d = full - reference and [lo, hi] its 95 % t-interval, the margin is
+
+    * ``margin`` when given;
+    * else, with ``expected`` the per-realisation differences the known terms
+      predict (e.g. twin - reduced), |mean e| + hw(e) + hw(d) + floor: the
+      difference the known terms explain plus both paired uncertainties;
+    * else 2 hw(d) + floor: agreement within the run's own paired resolution.
+
+    pass when [lo, hi] lies inside +-margin, fail when it lies wholly outside,
+    inconclusive otherwise, with the number of realisations it would need.
     """
     a = np.asarray(full, dtype=float).ravel()
-    b = np.asarray(reduced, dtype=float).ravel()
+    b = np.asarray(reference, dtype=float).ravel()
     ok = np.isfinite(a) & np.isfinite(b)
     a, b = a[ok], b[ok]
     if a.size < 2:
         return INCONCLUSIVE, {"n": int(a.size)}
     d = a - b
     hw = t_half_width(d)
-    margin = t_half_width(b)
+    if margin is None and expected is not None:
+        e = np.asarray(expected, dtype=float).ravel()
+        e = e[np.isfinite(e)]
+        margin = abs(float(e.mean())) + t_half_width(e) + hw + floor
+        rule = "known terms' difference + paired half-widths"
+    elif margin is None:
+        margin = 2.0 * hw + floor
+        rule = "twice the paired half-width"
+    else:
+        rule = "given"
     lo, hi = d.mean() - hw, d.mean() + hw
     if lo >= -margin and hi <= margin:
         status = PASS
@@ -89,13 +142,43 @@ def paired_equivalence(full: np.ndarray, reduced: np.ndarray) -> tuple[str, dict
     else:
         status = INCONCLUSIVE
     n = a.size
-    return status, {
+    out = {
         "n": int(n),
         "full": {"value": float(a.mean()), "se": float(a.std(ddof=1) / np.sqrt(n))},
         "reduced": {"value": float(b.mean()), "se": float(b.std(ddof=1) / np.sqrt(n))},
+        "difference": {"value": float(d.mean()), "se": float(d.std(ddof=1) / np.sqrt(n))},
         "difference_mean": float(d.mean()),
         "difference_ci95": [float(lo), float(hi)],
         "margin": float(margin),
+        "margin_rule": rule,
+    }
+    if status == INCONCLUSIVE:
+        out["needed_realizations"] = needed_realizations(d, margin)
+    return status, out
+
+
+def paired_shift(value: np.ndarray, reference: np.ndarray, floor: float = 0.0) -> tuple[str, dict]:
+    """Has a per-realisation number moved against a reference that should equal it?
+
+    For the full model against its exact twin (same noise): d = value - reference;
+    pass when |mean d| <= hw(d) + floor (zero lies in the paired 95 % interval,
+    widened by the twin's measured floor), fail otherwise.
+    """
+    a = np.asarray(value, dtype=float).ravel()
+    b = np.asarray(reference, dtype=float).ravel()
+    if a.shape != b.shape or not (np.isfinite(a) == np.isfinite(b)).all():
+        return FAIL, {"n": int(a.size), "reason": "different or non-finite values"}
+    ok = np.isfinite(a)
+    d = a[ok] - b[ok]
+    hw = t_half_width(d) if d.size > 1 else 0.0
+    hw = 0.0 if not np.isfinite(hw) else hw
+    mean = float(d.mean()) if d.size else 0.0
+    status = PASS if abs(mean) <= hw + floor else FAIL
+    return status, {
+        "n": int(d.size),
+        "difference_mean": mean,
+        "difference_ci95": [mean - hw, mean + hw],
+        "floor": floor,
     }
 
 

@@ -46,8 +46,11 @@ def _say(text: str) -> None:
 
 
 def cmd_run(a: argparse.Namespace) -> int:
+    from cip.mjcf_params import model_files
+
+    from ..baseline import choose_mode
     from ..harness import STAGES, RunInterrupted, compile_note, run_validation
-    from ..report import compare_with_baseline, summary_table, write_reports
+    from ..report import compare_with_baseline, jsonable, summary_table, write_reports
 
     baseline = read_results(a.baseline, "--baseline") if a.baseline else None
     if baseline is not None and baseline.get("profile") != a.profile:
@@ -55,6 +58,7 @@ def cmd_run(a: argparse.Namespace) -> int:
             f"--baseline: {a.baseline!r} was made with profile {baseline.get('profile')!r}, "
             f"this run uses {a.profile!r}"
         )
+    files = model_files(a.mjcf)  # a bad model file is refused before any work
     out = check_out_dir("--out", a.out)
     note = compile_note()
     if note:
@@ -74,6 +78,7 @@ def cmd_run(a: argparse.Namespace) -> int:
                 figures=not a.no_figures,
                 resume=a.resume,
                 on_stage=on_stage,
+                model_files=files,
             )
         except RunInterrupted as exc:
             kept = ", ".join(exc.kept) or "none"
@@ -85,10 +90,14 @@ def cmd_run(a: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return status
-        regression = compare_with_baseline(results, baseline) if baseline else None
+        regression = None
+        if baseline:
+            mode, why = choose_mode(jsonable(results), baseline, a.baseline_mode)
+            regression = compare_with_baseline(results, baseline, mode)
         if regression:
             failed = [c for c in regression if c.status == "fail"]
             results["regression"] = {"baseline": str(a.baseline), "checked": len(regression),
+                                     "mode": mode, "mode_reason": why,
                                      "failed": [c.as_dict() for c in failed]}  # fmt: skip
             if failed:
                 results["status"] = "fail"
@@ -99,9 +108,13 @@ def cmd_run(a: argparse.Namespace) -> int:
     if regression is not None:
         nfail = sum(c.status == "fail" for c in regression)
         print(
-            f"regression vs {a.baseline}: {len(regression) - nfail} of {len(regression)} "
-            "numbers unchanged within 4 combined standard errors"
+            f"regression vs {a.baseline} ({mode} mode: {why}): "
+            f"{len(regression) - nfail} of {len(regression)} numbers unchanged"
         )
+        for c in regression:
+            if c.status == "fail":
+                print(f"  moved: {c.name.removeprefix('regression.')}: "
+                      f"{c.values.get('baseline')} -> {c.values.get('value')}")  # fmt: skip
     print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'results.json'}")
     return EXIT_FAIL if results["status"] == "fail" else EXIT_OK
 
@@ -157,6 +170,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--baseline", metavar="FILE", help="results.json to compare with (regression run)"
+    )
+    p.add_argument(
+        "--baseline-mode",
+        choices=("auto", "exact", "statistical"),
+        default="auto",
+        help="exact: every number to 1e-12 relative; statistical: paired tolerances; "
+        "auto (default): exact when package versions and platform match",
+    )
+    p.add_argument(
+        "--mjcf",
+        action="append",
+        metavar="PATH",
+        help="a user's CIP model file instead of the shipped models/cip_<model>.xml "
+        "(repeat for single and coupled; the model is read from the file)",
     )
     p.add_argument(
         "--workers",

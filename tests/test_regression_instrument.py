@@ -1,0 +1,167 @@
+"""The exact linear twin, the model-file mapping, the direct checks and the fault catalogue."""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+import numpy as np
+import pytest
+
+from cip.mjcf_params import load_model_file, read_mapping, shipped_model_path
+from cip.model import CIPParams, build, mjcf
+from cip.simulate import simulate_full
+from cipcore.params import BalanceParams, ParameterError
+from reduced.twin import TwinParams, simulate_twin
+from validation.agreement import TWIN_TOLERANCE, instrument_checks, measured_delay
+from validation.faults import CATALOGUE, make_fault
+from validation.selftest import run_selftest
+
+BETA = {"single": 20.306, "coupled": 21.032}
+
+
+def _pair(model, amplitude, twin_params=None, duration=2.0):
+    m = load_model_file(shipped_model_path(model))
+    mp = read_mapping(m)
+    p = BalanceParams(beta=BETA[model])
+    tw = twin_params or TwinParams(**mp.twin_terms())
+    kw = {"amplitude": amplitude, "fields": ("balancing_error",)}
+    full = simulate_full(model, p, duration, 2, 3, physical=mp.physical(), mj_model=m, **kw)
+    twin = simulate_twin(model, p, tw, duration, 2, 3, **kw)
+    ef, et = full["balancing_error"], twin["balancing_error"]
+    return np.linalg.norm(ef - et) / np.linalg.norm(et)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_twin_matches_mujoco_to_its_floor(model):
+    """At 1e-6 m the full model and its twin agree far below 1e-6 (floor ~2e-11)."""
+    assert _pair(model, 1e-6) < TWIN_TOLERANCE
+
+
+def test_twin_floor_is_second_order_in_the_angle():
+    """The residual scales as the amplitude squared: the terms the twin leaves out."""
+    r5, r4 = _pair("single", 1e-5), _pair("single", 1e-4)
+    assert r4 / r5 == pytest.approx(100, rel=0.05)
+
+
+@pytest.mark.parametrize(
+    "term", [{"mass_ratio": 1.1e-3}, {"alpha": 22.0 * 1.0001}, {"gamma_cart": 50.05}]
+)
+def test_twin_terms_matter(term):
+    """Each known term the twin carries is visible far above the floor."""
+    mp = read_mapping(load_model_file(shipped_model_path("single")))
+    tw = TwinParams(**{**mp.twin_terms(), **term})
+    assert _pair("single", 1e-6, tw) > 1e3 * TWIN_TOLERANCE
+
+
+def test_mapping_reads_the_generator_parameters():
+    p = CIPParams(pendulum_length=0.5, bob_mass=2e-3, solref=(0.004, 0.9), timestep=5e-4)
+    mp = read_mapping(build("coupled", p))
+    assert mp.pendulum_length == pytest.approx(0.5, rel=1e-14)
+    assert mp.mass_ratio == pytest.approx(2e-3, rel=1e-14)
+    assert mp.timestep == 5e-4 and mp.integrator == "Euler"
+    rod = mp.rod_constants()
+    k = 0.99 / (0.99**2 * 0.004**2 * 0.9**2)
+    assert rod["stiffness"] == pytest.approx(k, rel=1e-14)
+    # MuJoCo's own constraint constants at the initial state
+    m = build("coupled", p)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    assert d.efc_KBIP[0, 0] * d.efc_KBIP[0, 2] == pytest.approx(rod["stiffness"], rel=1e-12)
+    assert d.efc_KBIP[0, 1] == pytest.approx(rod["damping"], rel=1e-12)
+    assert d.efc_R[0] == pytest.approx(rod["regulariser"], rel=1e-12)
+
+
+def test_mapping_error_names_what_is_missing(tmp_path):
+    text = mjcf("single").replace('name="cart_damping_1"', 'name="damper"')
+    f = tmp_path / "bad.xml"
+    f.write_text(text)
+    with pytest.raises(ParameterError, match="no actuator 'cart_damping_1'"):
+        read_mapping(load_model_file(f))
+    f.write_text(mjcf("single").replace('name="tip_1"', 'name="bob_site"'))
+    with pytest.raises(ParameterError, match=r"does not compile: .*'tip_1' not found"):
+        load_model_file(f)
+    with pytest.raises(ParameterError, match="no such file"):
+        load_model_file(tmp_path / "absent.xml")
+
+
+def test_delay_measured_from_the_response_is_tau_over_the_model_timestep():
+    """The check reads tau and the model's timestep, never the runner's d."""
+    m = load_model_file(shipped_model_path("single"))
+    mp = read_mapping(m)
+    p = BalanceParams(beta=BETA["single"], tau=0.02)
+    assert measured_delay("single", p, mp.physical(), m) == round(0.02 / m.opt.timestep)
+    late = make_fault("delay_late", 1)
+    assert measured_delay("single", p, mp.physical(), m, late.backend()) == 21
+
+
+def test_unmodified_model_passes_every_direct_check():
+    checks = instrument_checks(1, 2, threads=1)
+    assert [c.name for c in checks if c.status != "pass"] == []
+
+
+def test_fault_backend_leaves_the_declared_model_alone():
+    m = load_model_file(shipped_model_path("coupled"))
+    before = copy.deepcopy(m.opt.gravity)
+    backend = make_fault("gravity", 0.005).backend()
+    b = backend(m, 1, 1)
+    assert b.faulty_model.opt.gravity[2] == pytest.approx(before[2] * 1.005)
+    np.testing.assert_array_equal(m.opt.gravity, before)
+
+
+def test_selftest_flags_every_catalogued_fault():
+    """CI's fast subset: the whole catalogue at its listed sizes, 2 realisations."""
+    clean, rows = run_selftest(seed=1, n_realizations=2)
+    assert clean == []
+    assert len(rows) == len(CATALOGUE)
+    missed = [r["fault"] for r in rows if not r["flagged"]]
+    assert missed == []
+
+
+def test_paired_rules_use_the_paired_uncertainty():
+    from validation.stats import needed_realizations, paired_equivalence, paired_shift
+
+    rng = np.random.default_rng(0)
+    base = rng.normal(0, 1, 16)  # the spread across realisations: large
+    known = 0.01 + 1e-3 * rng.normal(size=16)  # what the known terms predict, paired
+    ok = base + known + 1e-4 * rng.normal(size=16)
+    assert paired_equivalence(ok, base, expected=known)[0] == "pass"
+    # a shift 20x the paired resolution but 50x below the spread across realisations fails
+    assert paired_equivalence(ok + 0.02, base, expected=known)[0] == "fail"
+    st, v = paired_equivalence(ok + 0.0005, base, expected=known)
+    assert st == "inconclusive" and v["needed_realizations"] > 16
+    assert needed_realizations(np.full(4, 2.0), 1.0) is None
+    assert paired_shift(base + 1e-12, base, floor=1e-9)[0] == "pass"
+    assert paired_shift(base + 1e-6, base, floor=1e-9)[0] == "fail"
+
+
+def test_baseline_mode_follows_versions_and_platform():
+    from validation.baseline import choose_mode
+
+    a = {"versions": {"mujoco": "4.0.0"}, "platform": "x"}
+    assert choose_mode(a, a)[0] == "exact"
+    b = {"versions": {"mujoco": "3.5.0"}, "platform": "x"}
+    mode, why = choose_mode(a, b)
+    assert mode == "statistical" and "mujoco 3.5.0 -> 4.0.0" in why
+
+
+def test_selftest_cli(capsys):
+    from validation.cli import main
+
+    assert main(["selftest", "--faults", "gravity"]) == 0
+    assert "gravity" in capsys.readouterr().out
+    assert main(["selftest", "--faults", "nonsense"]) == 2
+    assert "unknown fault" in capsys.readouterr().err
+
+
+def test_run_refuses_a_bad_model_file_before_running(tmp_path, capsys):
+    from validation.cli import main
+
+    f = tmp_path / "dt.xml"
+    f.write_text(mjcf("single", CIPParams(timestep=2e-3)))
+    assert main(["run", "--mjcf", str(f), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "timestep 0.002" in err
+    assert not (tmp_path / "o").exists()
+    assert main(["run", "--mjcf", str(tmp_path / "absent.xml")]) == 2
+    assert "no such file" in capsys.readouterr().err

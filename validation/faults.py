@@ -1,0 +1,398 @@
+"""A catalogue of faults to inject into the full model: what the regression must catch.
+
+Each fault changes what the *engine* runs while the suite keeps what the model
+file declares (the twin, the reduced model and the controller's assumptions
+stay as they were), the way an engine bug, a wrong model constant or a
+controller bug would.  Three injection points, none of which edits the suite:
+
+* ``model``: a copy of the compiled ``MjModel`` the rollout backend steps is
+  edited (gravity, time step, masses, lengths, damping, the rod, the integrator),
+  then :func:`mujoco.mj_setConst` recomputes MuJoCo's derived constants;
+* ``control``: the controls the backend receives are changed (one controller's
+  gain or sign, one step of extra actuator latency);
+* ``params`` / ``noise``: the engine's controller gets other parameters (a delay
+  one step short, the noise without 1/sqrt(dt)) or other draws (the two
+  controllers sharing one noise).
+
+``size`` is the fault's magnitude in the unit of its type (relative change,
+steps, or a factor); :data:`CATALOGUE` lists the sizes the selftest must flag,
+:data:`FAULT_TYPES` how to build any size (for the power curve).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import mujoco
+import numpy as np
+
+from cip.runner import MujocoRollout
+from cipcore.noise import ArrayNoise, GainNoise
+from cipcore.params import BalanceParams, ParameterError
+
+ModelEdit = Callable[[mujoco.MjModel], None]
+CtrlEdit = Callable[[mujoco.MjModel, np.ndarray, dict], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One injected fault: its type, size, and what it changes in the engine."""
+
+    kind: str
+    size: float
+    unit: str
+    description: str
+    edit_model: ModelEdit | None = None
+    edit_ctrl: CtrlEdit | None = None
+    edit_params: Callable[[BalanceParams], BalanceParams] | None = None
+    shared_noise: bool = False
+    models: tuple[str, ...] = ("single", "coupled")  # the models it applies to
+
+    def engine_params(self, params: BalanceParams) -> BalanceParams:
+        return self.edit_params(params) if self.edit_params else params
+
+    def backend(self) -> type | None:
+        """A :class:`cip.runner.RolloutBackend` class carrying the fault, or None."""
+        if self.edit_model is None and self.edit_ctrl is None:
+            return None
+        edit_model, edit_ctrl = self.edit_model, self.edit_ctrl
+
+        class FaultyRollout(MujocoRollout):
+            def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int):
+                m = copy.deepcopy(model)
+                if edit_model is not None:
+                    edit_model(m)
+                    mujoco.mj_setConst(m, mujoco.MjData(m))
+                self.faulty_model = m
+                self.memory: dict = {}
+                super().__init__(m, n_realizations, threads)
+
+            def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+                if edit_ctrl is not None:
+                    ctrl = np.ascontiguousarray(edit_ctrl(self.faulty_model, ctrl, self.memory))
+                super().__call__(state, ctrl, out)
+
+        return FaultyRollout
+
+    def noise(self, seed: int, n_realizations: int, n_controllers: int, n_steps: int):
+        """The engine's noise: the seed's draws, or with controller 2 reusing controller 1's."""
+        if not self.shared_noise or n_controllers < 2:
+            return None
+        xi = GainNoise(seed, n_realizations, n_controllers).next_chunk(n_steps)
+        xi[..., 1] = xi[..., 0]
+        return ArrayNoise(xi)
+
+
+# ------------------------------------------------------------ model edits
+def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, pattern: str) -> list[int]:
+    out = []
+    for i in (1, 2):
+        j = mujoco.mj_name2id(m, kind, pattern.format(i))
+        if j >= 0:
+            out.append(j)
+    return out
+
+
+def _scale_gravity(f: float) -> ModelEdit:
+    def edit(m):
+        m.opt.gravity[2] *= f
+
+    return edit
+
+
+def _scale_timestep(f: float) -> ModelEdit:
+    def edit(m):
+        m.opt.timestep *= f
+
+    return edit
+
+
+def _scale_bias(name: str, f: float) -> ModelEdit:
+    def edit(m):
+        for a in _ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name + "_{}"):
+            m.actuator_biasprm[a][2] *= f
+
+    return edit
+
+
+def _pendulum_bodies(m) -> list[int]:
+    return [m.jnt_bodyid[j] for j in _ids(m, mujoco.mjtObj.mjOBJ_JOINT, "theta_{}")]
+
+
+def _scale_length(f: float) -> ModelEdit:
+    def edit(m):
+        for b in _pendulum_bodies(m):
+            m.body_ipos[b] *= f
+        for s in _ids(m, mujoco.mjtObj.mjOBJ_SITE, "tip_{}"):
+            m.site_pos[s] *= f
+        # the tip damping force is -gamma m v: its coefficient does not depend on L
+
+    return edit
+
+
+def _scale_tip_mass(f: float) -> ModelEdit:
+    def edit(m):
+        for b in _pendulum_bodies(m):
+            m.body_mass[b] *= f
+            m.body_inertia[b] *= f
+
+    return edit
+
+
+def _add_bob_inertia(kappa: float) -> ModelEdit:
+    def edit(m):
+        for b in _pendulum_bodies(m):
+            L = float(np.linalg.norm(m.body_ipos[b]))
+            m.body_inertia[b] += kappa * m.body_mass[b] * L**2
+
+    return edit
+
+
+def _scale_rod_timeconst(f: float) -> ModelEdit:
+    def edit(m):
+        e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "rod")
+        if e >= 0:
+            m.eq_solref[e][0] *= f
+
+    return edit
+
+
+def _remove_rod(m: mujoco.MjModel) -> None:
+    m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+
+
+def _integrator(name: str) -> ModelEdit:
+    def edit(m):
+        m.opt.integrator = int(getattr(mujoco.mjtIntegrator, name))
+
+    return edit
+
+
+# ------------------------------------------------------------ control edits
+def _gain_on_controller_1(f: float) -> CtrlEdit:
+    def edit(m, ctrl, memory):
+        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, "u_1")
+        ctrl = ctrl.copy()
+        ctrl[:, :, a] *= f
+        return ctrl
+
+    return edit
+
+
+def _latency(steps: int) -> CtrlEdit:
+    """Every control reaches the cart ``steps`` steps late (held at its first value before)."""
+
+    def edit(m, ctrl, memory):
+        past = memory.get("past")
+        if past is None:
+            past = np.repeat(ctrl[:, :1], steps, axis=1)
+        joined = np.concatenate([past, ctrl], axis=1)
+        memory["past"] = joined[:, joined.shape[1] - steps :].copy()
+        return joined[:, : ctrl.shape[1]]
+
+    return edit
+
+
+# ------------------------------------------------------------ the catalogue
+def make_fault(kind: str, size: float) -> Fault:
+    """A fault of type ``kind`` (a key of :data:`FAULT_TYPES`) and magnitude ``size``."""
+    if kind not in FAULT_TYPES:
+        raise ParameterError(f"fault must be one of {', '.join(FAULT_TYPES)}, got {kind!r}")
+    return FAULT_TYPES[kind]["build"](size)
+
+
+def _f(kind, size, unit, text, **kw) -> Fault:
+    return Fault(kind=kind, size=size, unit=unit, description=text, **kw)
+
+
+FAULT_TYPES: dict[str, dict] = {
+    "delay_late": {
+        "build": lambda s: _f(
+            "delay_late",
+            s,
+            "steps",
+            "control reaches the cart s steps late (actuator latency)",
+            edit_ctrl=_latency(int(s)),
+        ),
+        "integer": True,
+    },
+    "delay_short": {
+        "build": lambda s: _f(
+            "delay_short",
+            s,
+            "steps",
+            "controller delay s steps shorter than tau/dt",
+            edit_params=lambda p: replace(p, tau=p.tau - s * p.dt),
+        ),
+        "integer": True,
+    },
+    "noise_scale": {
+        "build": lambda s: _f(
+            "noise_scale",
+            s,
+            "relative",
+            "noise strength nu (1 + s)",
+            edit_params=lambda p: replace(p, nu=p.nu * (1 + s)),
+        ),
+    },
+    "noise_without_sqrt_dt": {
+        "build": lambda s: _f(
+            "noise_without_sqrt_dt",
+            s,
+            "flag",
+            "noise scaled by nu instead of nu/sqrt(dt)",
+            edit_params=lambda p: replace(p, nu=p.nu * math.sqrt(p.dt)),
+        ),
+        "fixed": True,
+    },
+    "cart_damping": {
+        "build": lambda s: _f(
+            "cart_damping",
+            s,
+            "relative",
+            "cart damping gamma (1 + s)",
+            edit_model=_scale_bias("cart_damping", 1 + s),
+        ),
+    },
+    "tip_damping": {
+        "build": lambda s: _f(
+            "tip_damping",
+            s,
+            "relative",
+            "tip damping gamma (1 + s)",
+            edit_model=_scale_bias("tip_damping", 1 + s),
+        ),
+    },
+    "pendulum_length": {
+        "build": lambda s: _f(
+            "pendulum_length",
+            s,
+            "relative",
+            "pendulum length L (1 + s)",
+            edit_model=_scale_length(1 + s),
+        ),
+    },
+    "mass_ratio": {
+        "build": lambda s: _f(
+            "mass_ratio",
+            s,
+            "relative",
+            "tip mass m (1 + s), m/M with it",
+            edit_model=_scale_tip_mass(1 + s),
+        ),
+    },
+    "bob_inertia": {
+        "build": lambda s: _f(
+            "bob_inertia",
+            s,
+            "kappa",
+            "bob rotational inertia added, kappa = I/(m L^2) = s",
+            edit_model=_add_bob_inertia(s),
+        ),
+    },
+    "gravity": {
+        "build": lambda s: _f(
+            "gravity", s, "relative", "gravity g (1 + s)", edit_model=_scale_gravity(1 + s)
+        ),
+    },
+    "timestep": {
+        "build": lambda s: _f(
+            "timestep",
+            s,
+            "relative",
+            "engine time step dt (1 + s), the controller still assumes dt",
+            edit_model=_scale_timestep(1 + s),
+        ),
+    },
+    "rod_softness": {
+        "build": lambda s: _f(
+            "rod_softness",
+            s,
+            "factor",
+            "rod solref time constant x s",
+            edit_model=_scale_rod_timeconst(s),
+            models=("coupled",),
+        ),
+        "identity": 1.0,
+    },
+    "rod_removed": {
+        "build": lambda s: _f(
+            "rod_removed",
+            s,
+            "flag",
+            "rod constraint disabled",
+            edit_model=_remove_rod,
+            models=("coupled",),
+        ),
+        "fixed": True,
+    },
+    "gain_one_controller": {
+        "build": lambda s: _f(
+            "gain_one_controller",
+            s,
+            "relative",
+            "controller 1's gain beta (1 + s)",
+            edit_ctrl=_gain_on_controller_1(1 + s),
+        ),
+    },
+    "gain_sign": {
+        "build": lambda s: _f(
+            "gain_sign",
+            s,
+            "flag",
+            "controller 1's force sign flipped",
+            edit_ctrl=_gain_on_controller_1(-1.0),
+        ),
+        "fixed": True,
+    },
+    "shared_noise": {
+        "build": lambda s: _f(
+            "shared_noise",
+            s,
+            "flag",
+            "both controllers draw the same noise",
+            shared_noise=True,
+            models=("coupled",),
+        ),
+        "fixed": True,
+    },
+    "integrator": {
+        "build": lambda s: _f(
+            "integrator",
+            s,
+            "flag",
+            "engine steps with implicitfast instead of Euler",
+            edit_model=_integrator("mjINT_IMPLICITFAST"),
+        ),
+        "fixed": True,
+    },
+}
+
+#: The sizes the selftest must flag (issue 9's list and more).
+CATALOGUE: tuple[tuple[str, float], ...] = (
+    ("delay_late", 1),
+    ("delay_short", 1),
+    ("noise_without_sqrt_dt", 1),
+    ("noise_scale", 0.01),
+    ("cart_damping", 0.01),
+    ("tip_damping", 0.01),
+    ("pendulum_length", 0.01),
+    ("mass_ratio", 0.1),
+    ("bob_inertia", 1e-4),
+    ("gravity", 0.005),
+    ("timestep", 0.0005),
+    ("rod_softness", 25.0),
+    ("rod_removed", 1),
+    ("gain_one_controller", -0.01),
+    ("gain_sign", 1),
+    ("shared_noise", 1),
+    ("integrator", 1),
+)
+
+
+def catalogue() -> list[Fault]:
+    """The catalogued faults at their listed sizes."""
+    return [make_fault(k, s) for k, s in CATALOGUE]
