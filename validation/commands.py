@@ -195,7 +195,7 @@ def cmd_baseline(a: argparse.Namespace) -> int:
 
 def add_run_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="the validation suite: checks, paper table, figures, report")
-    p.add_argument("--profile", choices=("quick", "paper", "smoke"), default="quick")
+    p.add_argument("--profile", choices=("quick", "paper", "smoke", "robustness"), default="quick")
     p.add_argument("--out", default="cip-validate-out", metavar="DIR")
     p.add_argument("--baseline", metavar="FILE", help="results.json to compare with")
     p.add_argument("--workers", type=int, default=None, help="threads (default: all cores)")
@@ -203,7 +203,7 @@ def add_run_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser("baseline", help="write a baseline results file for --baseline")
-    p.add_argument("--profile", choices=("quick", "paper", "smoke"), default="quick")
+    p.add_argument("--profile", choices=("quick", "paper", "smoke", "robustness"), default="quick")
     p.add_argument("--out", default="baseline.json", metavar="FILE")
     p.add_argument("--from", dest="from_results", metavar="RESULTS.json",
                    help="use an existing results.json instead of running")  # fmt: skip

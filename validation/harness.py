@@ -55,7 +55,7 @@ def run_validation(
     t0 = time.perf_counter()
     stages = ["lambda1 agreement", "time-series agreement", "amplitude scan",
               "critical gains", "lambda1 curve", "RMS and velocity", "STCC and spectra",
-              "rod-length study", "figures"]  # fmt: skip
+              "robustness", "nonlinear stick", "rod-length study", "figures"]  # fmt: skip
     bar = tqdm(stages, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     checks, paper_rows = [], []
@@ -89,6 +89,11 @@ def run_validation(
     with stage("STCC and spectra"):
         rows, peak_data = paper.peaks_and_spectra(profile, workers)
         paper_rows += rows
+    with stage("robustness"):
+        robust = paper.robustness(profile, workers)
+    with stage("nonlinear stick"):
+        nonlinear = paper.nonlinear_comparison(profile, workers)
+        paper.clear_cache()
     with stage("rod-length study"):
         c, rod_rows, rod_ds = agreement.rod_length_study(profile, out_dir, workers)
         checks += c
@@ -115,6 +120,8 @@ def run_validation(
         "counts": counts,
         "checks": [ch.as_dict() for ch in checks],
         "paper": paper_rows,
+        "robustness": robust,
+        "nonlinear": nonlinear,
         "amplitude_scan": scan_rows,
         "rod_length": rod_rows,
         "figures": [str(p.name) for p in figure_files],
