@@ -4,7 +4,7 @@ Every row names the system the paper makes the claim about (the linear model
 of section 3, or the human experiment of section 4), the section and the
 equation / figure / table label, the paper's value, ours with a 95 % interval,
 the estimator, and a status: ``reproduced``, ``not reproduced``,
-``estimator-dependent`` or ``not a check`` (with the reason: a claim about
+``inconclusive`` or ``not a check`` (with the reason: a claim about
 the human experiment, one noise draw, or a number that depends on an
 unstated initial condition).  Only the critical gains are verdicts of the
 run (within 0.25, shift within 0.15); the other rows are reported as measured.
@@ -471,7 +471,7 @@ def rms_and_velocity(profile: Profile, threads: int | None) -> tuple[list[dict],
             else (
                 "not reproduced"
                 if v["ci95"][1] < 1.5 or v["ci95"][0] > 2.5
-                else "estimator-dependent"
+                else "inconclusive"
             )
         )
         rows.append(_row(f"p(dq1/dt) / p(dx/dt) near 0, {label}", 2.0, v["ratio"], v["ci95"],
@@ -528,7 +528,7 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
         v, lo, hi = pk[key]
         out = _direction(lo, hi, side)
         status = {"supports": "reproduced", "contradicts": "not reproduced"}.get(
-            out, "estimator-dependent"
+            out, "inconclusive"
         )
         rows.append(_row(
             f"tau_hat {text}", paper_v, v, [lo, hi], pset, status,
@@ -571,7 +571,7 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
         [float(np.hypot(fs[k + "_se"], fc[k + "_se"])) for k in ("slope_low", "slope_high")],
         sset, {"supports": "reproduced", "contradicts": "not reproduced"}.get(
             min(same, key=["contradicts", "inconclusive", "supports"].index),
-            "estimator-dependent"),
+            "inconclusive"),
         "differences coupled - single of the low and high slopes; equal within 2 SE",
         where="section 3.1, Fig. pwsp",
     ))  # fmt: skip
