@@ -468,11 +468,7 @@ def rms_and_velocity(profile: Profile, threads: int | None) -> tuple[list[dict],
         status = (
             "reproduced"
             if ok
-            else (
-                "not reproduced"
-                if v["ci95"][1] < 1.5 or v["ci95"][0] > 2.5
-                else "inconclusive"
-            )
+            else ("not reproduced" if v["ci95"][1] < 1.5 or v["ci95"][0] > 2.5 else "inconclusive")
         )
         rows.append(_row(f"p(dq1/dt) / p(dx/dt) near 0, {label}", 2.0, v["ratio"], v["ci95"],
                          vset, status, f"h = {v['h']:.3g}; fractions within h: coupled "
