@@ -790,6 +790,7 @@ def nonlinear_comparison(profile: Profile, threads: int | None) -> list[dict]:
     dt = profile.decimate * p.dt
     rows = []
     for name, e in runs.items():
+        angle = name.startswith("nonlinear")
         seg = T / 4
         f, s = metrics.power_spectrum(e, dt, segment=seg)
         fit = metrics.fit_two_power_laws(f, s, max(0.05, 4 / seg), 20.0, n_bootstrap=100,
@@ -813,7 +814,9 @@ def nonlinear_comparison(profile: Profile, threads: int | None) -> list[dict]:
                 "laminar_se": se,
                 "laminar_is_minus_three_halves": bool(np.isfinite(sl) and abs(sl + 1.5) <= 2 * se),
                 "max_abs": float(np.nanmax(np.abs(e))),
-                "fallen_fraction": float(np.mean(np.nanmax(np.abs(e), -1) > np.pi / 2)),
+                "fallen_fraction": (
+                    float(np.mean(np.nanmax(np.abs(e), -1) > np.pi / 2)) if angle else None
+                ),
             }
         )
     return rows

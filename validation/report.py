@@ -142,8 +142,8 @@ def paper_section(results: dict) -> list[str]:
             "## The nonlinear stick, eq. (cabrera), beside the linear model",
             "",
             "| model | realisations x s | seed | low slope | high slope | crossover (Hz) "
-            "| low slope = -1/2 | laminar exponent | laminar = -3/2 | largest abs theta "
-            "| fraction fallen |",
+            "| low slope = -1/2 | laminar exponent | laminar = -3/2 | largest abs error (m or rad) "
+            "| fraction with abs theta > pi/2 |",
             "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for r in results["nonlinear"]:
@@ -155,7 +155,7 @@ def paper_section(results: dict) -> list[str]:
                  if r["laminar_slope"] is not None and math.isfinite(r["laminar_slope"])
                  else "n/a (fewer than 3 populated bins)"),
                 "yes" if r["laminar_is_minus_three_halves"] else "no", r["max_abs"],
-                r["fallen_fraction"]]))  # fmt: skip
+                _fmt(r["fallen_fraction"], "n/a (linear model: no angle)")]))  # fmt: skip
     return lines
 
 
