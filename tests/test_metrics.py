@@ -63,7 +63,8 @@ def test_first_dominant_peak_rule():
     assert first_dominant_peak(np.array([0.1, 0.5, 0.2, 0.55, 0.3, 0.2]), lags) == 0.01
     assert first_dominant_peak(np.array([0.1, 0.2, 0.1, 0.9, 0.3, 0.2]), lags) == 0.03
     assert np.isnan(first_dominant_peak(np.array([0.9, 0.5, 0.4, 0.3, 0.2, 0.1]), lags))
-    assert first_dominant_peak(np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6]), lags) == 0.05
+    # R still rising at the end of the lag range: a boundary, never a peak
+    assert np.isnan(first_dominant_peak(np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6]), lags))
 
 
 def _process_with_spectrum(slopes, fc, n, dt, reals):

@@ -15,7 +15,7 @@ import numpy as np
 from cip.lyapunov import lyapunov_full
 from cip.model import small_angle_limit
 from cip.simulate import DivergenceWarning, simulate_full
-from cipcore.models import get_model
+from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import ParameterError
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
@@ -614,7 +614,7 @@ def instrument_checks(
     *,
     files: dict[str, str] | None = None,
     fault=None,
-    models: tuple[str, ...] = ("single", "coupled"),
+    models: tuple[str, ...] = MODEL_NAMES,
 ) -> list[Check]:
     """Full model vs its exact twin, the delay, the rod, the declared model (issue 9).
 

@@ -30,6 +30,7 @@ import mujoco
 import numpy as np
 
 from cip.runner import MujocoRollout
+from cipcore.models import MODEL_NAMES
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
 
@@ -49,7 +50,7 @@ class Fault:
     edit_ctrl: CtrlEdit | None = None
     edit_params: Callable[[BalanceParams], BalanceParams] | None = None
     shared_noise: bool = False
-    models: tuple[str, ...] = ("single", "coupled")  # the models it applies to
+    models: tuple[str, ...] = MODEL_NAMES  # the models it applies to
 
     def engine_params(self, params: BalanceParams) -> BalanceParams:
         return self.edit_params(params) if self.edit_params else params

@@ -46,8 +46,8 @@ from .versions import package_versions
 __all__ = ["STAGES", "RunInterrupted", "compile_note", "package_versions", "run_validation"]
 
 STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan", "critical gains",
-          "lambda1 curve", "RMS and velocity", "STCC and spectra", "rod-length study",
-          "figures")  # fmt: skip
+          "lambda1 curve", "RMS and velocity", "STCC and spectra", "robustness",
+          "nonlinear stick", "rod-length study", "figures")  # fmt: skip
 STAGE_DIR = "stages"
 
 
@@ -170,6 +170,12 @@ def run_validation(
             return paper.rms_and_velocity(profile, workers)
         if name == "STCC and spectra":
             return paper.peaks_and_spectra(profile, workers)
+        if name == "robustness":
+            return paper.robustness(profile, workers)
+        if name == "nonlinear stick":
+            nonlinear = paper.nonlinear_comparison(profile, workers)
+            paper.clear_cache()  # the paper stages' shared simulations are no longer needed
+            return nonlinear
         if name == "rod-length study":
             return agreement.rod_length_study(profile, out_dir, workers)
         return _figures(out_dir, state) if figures else []
@@ -280,6 +286,7 @@ def _results(
     """The results dictionary from the stages finished so far (in stage order)."""
     checks, paper_rows = [], []
     scan_rows, rod_rows, figure_files = [], [], []
+    robust, nonlinear = None, None
     for name in STAGES:
         if name not in state:
             continue
@@ -294,6 +301,10 @@ def _results(
             paper_rows += v[1]
         elif name in ("RMS and velocity", "STCC and spectra"):
             paper_rows += v[0]
+        elif name == "robustness":
+            robust = v
+        elif name == "nonlinear stick":
+            nonlinear = v
         elif name == "rod-length study":
             checks += v[0]
             rod_rows = v[1]
@@ -309,6 +320,8 @@ def _results(
         "counts": counts,
         "checks": [ch.as_dict() for ch in checks],
         "paper": paper_rows,
+        "robustness": robust,
+        "nonlinear": nonlinear,
         "amplitude_scan": scan_rows,
         "rod_length": rod_rows,
         "figures": [str(Path(p).name) for p in figure_files],

@@ -7,6 +7,7 @@ paper figure or equation it implements.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -132,9 +133,13 @@ def rms(x: np.ndarray, axis: int = -1) -> np.ndarray:
 
 
 def density(v: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Histogram estimate of the probability density of all samples of ``v`` on ``edges``."""
-    h, _ = np.histogram(np.asarray(v, dtype=float).ravel(), bins=edges, density=True)
-    return h
+    """Histogram estimate of the probability density of ``v`` on ``edges``, normalised by
+    ALL finite samples (samples outside ``edges`` count in the total, so the density on
+    the bins is not renormalised to integrate to 1 over the bins)."""
+    v = np.asarray(v, dtype=float).ravel()
+    v = v[np.isfinite(v)]
+    h, _ = np.histogram(v, bins=edges)
+    return h / (max(v.size, 1) * np.diff(edges))
 
 
 def velocity_density_ratio(
@@ -142,8 +147,9 @@ def velocity_density_ratio(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Ratio p(dq1/dt) / p(dx/dt) of velocity-error densities (paper Fig. velo).
 
-    Both densities are histogram estimates on the same ``edges`` (m/s);
-    returns bin centres and the ratio (NaN where the single density is zero).
+    Both densities are histogram estimates on the same ``edges`` (m/s), each
+    normalised by all its samples (:func:`density`); returns bin centres and
+    the ratio (NaN where the single density is zero).
     """
     pc = density(v_coupled, edges)
     ps = density(v_single, edges)
@@ -152,7 +158,155 @@ def velocity_density_ratio(
     return 0.5 * (edges[1:] + edges[:-1]), ratio
 
 
+#: Scales for the bins of the velocity density (see :func:`robust_scale`).
+SCALES = ("median_std", "mad")
+
+
+def robust_scale(v: np.ndarray, method: str = "median_std") -> float:
+    """A scale of samples ``v`` (realisations, samples) that one runaway realisation cannot set.
+
+    ``"median_std"``: the median over realisations of each realisation's
+    standard deviation.  ``"mad"``: 1.4826 x the median absolute deviation
+    of all samples from their median (equals sigma for a Gaussian).
+    """
+    v = np.atleast_2d(np.asarray(v, dtype=float))
+    if method == "median_std":
+        return float(np.median(np.std(v, axis=-1)))
+    if method == "mad":
+        flat = v[np.isfinite(v)]
+        return float(1.4826 * np.median(np.abs(flat - np.median(flat))))
+    raise ValueError(f"scale must be one of {', '.join(SCALES)}, got {method!r}")
+
+
+def per_realisation_normalised(v: np.ndarray) -> np.ndarray:
+    """``v`` (realisations, samples) divided by each realisation's own standard deviation."""
+    v = np.atleast_2d(np.asarray(v, dtype=float))
+    s = np.std(v, axis=-1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(s > 0, v / s, np.nan)
+
+
+@dataclass
+class DensityRatio:
+    """p_coupled / p_single on [-h, h] (paper Fig. velo: about 2 near the origin).
+
+    ``h`` = ``half_width`` x ``scale`` (in the units of the velocities, or
+    dimensionless when normalised per realisation); ``ci95`` is a percentile
+    bootstrap over realisations (each model resampled independently).
+    """
+
+    ratio: float
+    ci95: tuple[float, float]
+    h: float
+    scale: float
+    scale_method: str
+    half_width: float
+    normalised: bool
+    fraction_coupled: float
+    fraction_single: float
+    n_bootstrap: int
+    seed: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def density_ratio_near_zero(
+    v_coupled: np.ndarray,
+    v_single: np.ndarray,
+    half_width: float = 0.1,
+    scale: str = "median_std",
+    normalise: bool = False,
+    n_bootstrap: int = 1000,
+    seed: int = 0,
+) -> DensityRatio:
+    """Ratio of velocity-error densities in the bin [-h, h] around 0 (paper Fig. velo).
+
+    Each density is (samples with |v| < h) / (ALL samples x 2h), so the ratio is
+    the ratio of the fractions of samples within h of 0.  h = ``half_width``
+    times a robust scale (:func:`robust_scale`) of both models' realisations
+    pooled, so that neither one runaway realisation nor the smaller model sets
+    it.  With ``normalise`` every realisation is first divided by its own
+    standard deviation (the ratio then compares shapes, not amplitudes).
+
+    Parameters
+    ----------
+    v_coupled, v_single : (realisations, samples) velocity errors (m/s).
+    """
+    vc = np.atleast_2d(np.asarray(v_coupled, dtype=float))
+    vs = np.atleast_2d(np.asarray(v_single, dtype=float))
+    if normalise:
+        vc, vs = per_realisation_normalised(vc), per_realisation_normalised(vs)
+    if scale == "median_std":
+        sc = float(np.median(np.concatenate([np.std(vc, axis=-1), np.std(vs, axis=-1)])))
+    else:
+        sc = robust_scale(np.concatenate([vc.ravel(), vs.ravel()])[None], scale)
+    h = half_width * sc
+    # per-realisation counts within h and sample counts: the bootstrap resamples these
+    kc, nc = (np.abs(vc) < h).sum(axis=-1), np.isfinite(vc).sum(axis=-1)
+    ks, ns = (np.abs(vs) < h).sum(axis=-1), np.isfinite(vs).sum(axis=-1)
+
+    def ratio(ic, is_):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (kc[ic].sum(-1) / nc[ic].sum(-1)) / (ks[is_].sum(-1) / ns[is_].sum(-1))
+
+    rng = np.random.default_rng(seed)
+    ic = rng.integers(0, kc.size, (n_bootstrap, kc.size))
+    is_ = rng.integers(0, ks.size, (n_bootstrap, ks.size))
+    boot = ratio(ic, is_)
+    lo, hi = np.nanpercentile(boot, [2.5, 97.5]) if np.isfinite(boot).any() else (np.nan,) * 2
+    return DensityRatio(
+        ratio=float(ratio(np.arange(kc.size), np.arange(ks.size))),
+        ci95=(float(lo), float(hi)), h=float(h), scale=sc, scale_method=scale,
+        half_width=float(half_width), normalised=bool(normalise),
+        fraction_coupled=float(kc.sum() / nc.sum()), fraction_single=float(ks.sum() / ns.sum()),
+        n_bootstrap=int(n_bootstrap), seed=int(seed),
+    )  # fmt: skip
+
+
 # ----------------------------------------------------------------- STCC
+#: Largest number of block values gathered at once when combining windows.
+_CHUNK_ELEMENTS = 4_000_000
+
+
+def _block_stats(z: np.ndarray, nblocks: int, g: int) -> tuple[np.ndarray, np.ndarray]:
+    """Means (..., nblocks) and centred samples (..., nblocks, g) of consecutive blocks."""
+    b = z[..., : nblocks * g].reshape(*z.shape[:-1], nblocks, g)
+    m = b.mean(axis=-1)
+    return m, b - m[..., None]
+
+
+def _window_blocks(a: np.ndarray, k: int, first: np.ndarray) -> np.ndarray:
+    """(..., windows, k): the k consecutive block values of each window."""
+    v = np.lib.stride_tricks.sliding_window_view(a, k, axis=-1)
+    return v[..., first, :]
+
+
+def _window_comoment(
+    mx: np.ndarray, my: np.ndarray, cb: np.ndarray, k: int, first: np.ndarray, g: int
+) -> np.ndarray:
+    """Comoment sum_s (x - m_x)(y - m_y) over windows of k blocks of g samples.
+
+    Exact decomposition into within-block and between-block parts (the
+    parallel formula of Chan, Golub & LeVeque 1983 for equal blocks)::
+
+        C_W = sum_b C_b + g sum_b (m_x,b - M_x)(m_y,b - M_y),   M = mean_b m_b,
+
+    every sum taken directly over its window (no differences of running sums),
+    so the result keeps full relative precision whatever the dynamic range.
+    """
+    out = np.empty((*mx.shape[:-1], first.size))
+    per = max(1, _CHUNK_ELEMENTS // (k * max(1, mx[..., 0].size)))  # bound the memory
+    for a in range(0, first.size, per):
+        sel = first[a : a + per]
+        bx = _window_blocks(mx, k, sel)
+        by = _window_blocks(my, k, sel)
+        bx = bx - bx.mean(axis=-1, keepdims=True)
+        by = by - by.mean(axis=-1, keepdims=True)
+        out[..., a : a + per] = _window_blocks(cb, k, sel).sum(axis=-1) + g * (bx * by).sum(axis=-1)
+    return out
+
+
 def stcc(
     x: np.ndarray, y: np.ndarray, dt: float, window: float, max_lag: float, stride: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -161,11 +315,20 @@ def stcc(
         R(x, y; tau)(t) = < (x(s) - m_x) (y(s + tau) - m_y) >_[t, t+Dt] / (sigma_x sigma_y)
 
     with m_x, m_y, sigma_x, sigma_y the mean and deviation of x and y over
-    [t, t + Dt] (Dt = ``window``), exactly as the paper defines them, so that
-    C = <x(s) y(s+tau)>_W - m_x <y(s+tau)>_W.  Time averages are discrete means
-    over the window's samples.  Computed for all window starts t (every
-    ``stride`` s, up to the last start whose lagged window fits) and all lags
-    tau = 0, dt, ..., ``max_lag`` at once with cumulative sums: O(samples x lags).
+    [t, t + Dt] (Dt = ``window``), exactly as the paper defines them.  Because
+    <x - m_x>_W = 0 the numerator equals the window covariance of x(s) and the
+    lagged y(s + tau); m_y drops out.  Time averages are discrete means over
+    the window's samples.  Computed for all window starts t (every ``stride``
+    s, up to the last start whose lagged window fits) and all lags
+    tau = 0, dt, ..., ``max_lag``.
+
+    Numerics: the series is cut into blocks of g = gcd(window, stride) samples;
+    each block's mean and centred sums are formed directly, and a window's
+    moments are combined from its blocks by the exact within/between
+    decomposition (Chan, Golub & LeVeque 1983).  Nothing is a difference of
+    whole-series running sums, so R equals a direct per-window computation to
+    rounding (about 1e-14) for signals spanning any dynamic range (tested over
+    1e-12 to 1e9).  Cost O(samples x lags + windows x lags x window/g).
 
     Parameters
     ----------
@@ -174,7 +337,7 @@ def stcc(
     Returns
     -------
     t : (windows,) window starts in s;  lags : (lags,) in s;
-    R : (..., windows, lags).
+    R : (..., windows, lags); NaN where a window has zero deviation.
     """
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -187,57 +350,177 @@ def stcc(
             f"window + max_lag = {(w + lmax) * dt:g} s exceeds the series ({n * dt:g} s)"
         )
     starts = np.arange(0, n - w - lmax + 1, step)
-
-    def wsum(z: np.ndarray) -> np.ndarray:
-        c = np.concatenate([np.zeros((*z.shape[:-1], 1)), np.cumsum(z, axis=-1)], axis=-1)
-        return c[..., starts + w] - c[..., starts]
-
-    mx = wsum(x) / w
-    my = wsum(y) / w
-    sx = np.sqrt(np.maximum(wsum(x * x) / w - mx * mx, 0.0))
-    sy = np.sqrt(np.maximum(wsum(y * y) / w - my * my, 0.0))
+    g = math.gcd(w, step)
+    k = w // g
+    first = starts // g
+    nblocks = int(first[-1]) + k
+    mx, cx = _block_stats(x, nblocks, g)
+    my0, cy0 = _block_stats(y, nblocks, g)
+    sxx = _window_comoment(mx, mx, (cx * cx).sum(axis=-1), k, first, g)
+    syy = _window_comoment(my0, my0, (cy0 * cy0).sum(axis=-1), k, first, g)
+    norm = np.sqrt(sxx * syy)
     out = np.empty((*x.shape[:-1], starts.size, lmax + 1))
     for lag in range(lmax + 1):
-        ys = y[..., lag:]
-        # windows of x(s) y(s + lag) and of y(s + lag) for s in [t, t + Dt); every window
-        # ends at starts + w <= n - lmax <= n - lag, inside the lagged series
-        sxy = wsum(x[..., : n - lag] * ys) / w
-        sy_l = wsum(ys) / w
+        # every lagged window ends at starts + w + lag <= n - lmax + lag <= n
+        my, cy = (my0, cy0) if lag == 0 else _block_stats(y[..., lag:], nblocks, g)
+        sxy = _window_comoment(mx, my, (cx * cy).sum(axis=-1), k, first, g)
         with np.errstate(divide="ignore", invalid="ignore"):
-            out[..., lag] = (sxy - mx * sy_l) / (sx * sy)
+            out[..., lag] = sxy / norm
     return starts * dt, np.arange(lmax + 1) * dt, out
 
 
-def first_dominant_peak(
-    r: np.ndarray, lags: np.ndarray, dominance: float = 0.8, significance: float = 0.0
-) -> np.ndarray:
+@dataclass
+class DominantPeaks:
+    """First dominant peaks of STCC curves and why a window has none.
+
+    ``tau_hat`` (...): the first dominant peak lag (s), NaN where none;
+    ``no_peak`` (...): no interior local maximum qualifies;
+    ``boundary_max`` (...): the largest R over the lag range sits at its first or
+    last lag (R still rising at max_lag, or decreasing from lag 0).  A
+    boundary is never reported as a peak.
+    """
+
+    tau_hat: np.ndarray
+    no_peak: np.ndarray
+    boundary_max: np.ndarray
+
+    def fractions(self) -> dict[str, float]:
+        """Fractions of windows with a peak, without one, and with a boundary maximum."""
+        n = max(self.tau_hat.size, 1)
+        return {
+            "with_peak": float(np.isfinite(self.tau_hat).sum() / n),
+            "no_peak": float(self.no_peak.sum() / n),
+            "boundary_max": float(self.boundary_max.sum() / n),
+        }
+
+
+def dominant_peaks(
+    r: np.ndarray,
+    lags: np.ndarray,
+    dominance: float = 0.8,
+    significance: float | np.ndarray = 0.0,
+) -> DominantPeaks:
     """First dominant peak tau_hat of STCC curves (paper Figs. scc, sccpeak).
 
-    Rule: among the local maxima of R over lags > 0 (a lag whose R exceeds both
-    neighbours; the last lag counts if R still rises there), tau_hat is the
-    smallest lag whose R is at least ``dominance`` times the largest R over
-    all lags and above ``significance``.  NaN where no local maximum qualifies
-    (e.g. R decreasing from lag 0, or all correlations insignificant).
+    Rule: a peak is an interior lag (neither the first nor the last) whose R
+    exceeds its left neighbour and is not below its right one.  tau_hat is the
+    smallest peak lag whose R is at least ``dominance`` times the largest R
+    over all lags and above ``significance`` (a scalar or one level per
+    window, shape broadcastable to ``r.shape[:-1]``; see
+    :func:`stcc_significance_bartlett`).  The paper does not state its rule;
+    ``dominance`` is one of the estimator choices of the robustness table.
 
-    ``r`` is (..., lags); returns (...) in the units of ``lags``.
+    ``r`` is (..., lags); every output is (...).
     """
     r = np.asarray(r, dtype=float)
-    rmax = np.nanmax(r, axis=-1, keepdims=True)
-    left = r[..., 1:-1] > r[..., :-2]
-    right = r[..., 1:-1] >= r[..., 2:]
-    peak = np.zeros(r.shape, dtype=bool)
-    peak[..., 1:-1] = left & right
-    peak[..., -1] = r[..., -1] > r[..., -2]
-    ok = peak & (r >= dominance * rmax) & (r > significance) & (rmax > 0)
-    first = np.argmax(ok, axis=-1)
+    sig = np.asarray(significance, dtype=float)
+    if sig.ndim:
+        sig = sig[..., None]
+    with np.errstate(invalid="ignore"):
+        rmax = np.nanmax(np.where(np.isnan(r), -np.inf, r), axis=-1, keepdims=True)
+        peak = np.zeros(r.shape, dtype=bool)
+        peak[..., 1:-1] = (r[..., 1:-1] > r[..., :-2]) & (r[..., 1:-1] >= r[..., 2:])
+        ok = peak & (r >= dominance * rmax) & (r > sig) & (rmax > 0)
     has = ok.any(axis=-1)
-    return np.where(has, lags[first], np.nan)
+    first = np.argmax(ok, axis=-1)
+    arg = np.argmax(np.where(np.isnan(r), -np.inf, r), axis=-1)
+    finite = np.isfinite(r).all(axis=-1)
+    boundary = finite & ((arg == 0) | (arg == r.shape[-1] - 1))
+    return DominantPeaks(
+        tau_hat=np.where(has, np.asarray(lags)[first], np.nan),
+        no_peak=~has,
+        boundary_max=boundary,
+    )
+
+
+def first_dominant_peak(
+    r: np.ndarray,
+    lags: np.ndarray,
+    dominance: float = 0.8,
+    significance: float | np.ndarray = 0.0,
+) -> np.ndarray:
+    """tau_hat of :func:`dominant_peaks` alone: (...) in the units of ``lags``, NaN where
+    no interior peak qualifies (a boundary is never a peak)."""
+    return dominant_peaks(r, lags, dominance, significance).tau_hat
 
 
 def stcc_significance(window_samples: int, z: float = 3.0) -> float:
-    """Correlation level ``z / sqrt(window_samples)``: below it R is indistinguishable
-    from that of independent white noise (its standard deviation is 1/sqrt(n))."""
+    """Correlation level ``z / sqrt(window_samples)``: the white-noise level.
+
+    Valid only when the samples of a window are independent; for correlated
+    series (velocities of a balancer are correlated over tens of ms) use
+    :func:`stcc_significance_bartlett`, which replaces n by the effective number
+    of independent samples.
+    """
     return z / np.sqrt(window_samples)
+
+
+def _window_acf(z: np.ndarray, w: int) -> np.ndarray:
+    """Sample autocorrelations r(j), j = 0..w-1, of each row of ``z`` (rows, w).
+
+    The standard (biased) estimator: r(j) = sum_{s<w-j} z'_s z'_{s+j} / sum z'^2,
+    z' the row minus its mean; via a zero-padded FFT.
+    """
+    z = z - z.mean(axis=-1, keepdims=True)
+    nfft = 1 << (2 * w - 1).bit_length()
+    f = np.fft.rfft(z, nfft, axis=-1)
+    ac = np.fft.irfft(f * np.conj(f), nfft, axis=-1)[..., :w]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return ac / ac[..., :1]
+
+
+def effective_samples(
+    x: np.ndarray, y: np.ndarray, dt: float, t: np.ndarray, window: float,
+    max_lag_fraction: float = 0.2,
+) -> np.ndarray:  # fmt: skip
+    """Effective number of independent samples of each STCC window (Bartlett's formula).
+
+    For two series with no cross-correlation the variance of their sample
+    cross-correlation over n samples is (Bartlett 1946; in the form of Pyper &
+    Peterman 1998, Can. J. Fish. Aquat. Sci. 55, 2127, eq. 1)::
+
+        1 / n_eff = 1/n + (2/n) sum_{j=1}^{M} (n - j)/n  r_xx(j) r_yy(j),
+
+    with r_xx, r_yy the sample autocorrelations inside the window and
+    M = ``max_lag_fraction`` x n (their choice, n/5).  n_eff is clipped to
+    [2, n].  ``t`` are window starts (s) as returned by :func:`stcc`.
+
+    Returns (..., windows).
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    w = round(window / dt)
+    starts = np.round(np.asarray(t) / dt).astype(int)
+    m = max(1, int(max_lag_fraction * w))
+    j = np.arange(1, m + 1)
+    weight = (w - j) / w
+    lead = x.shape[:-1]
+    xf, yf = x.reshape(-1, x.shape[-1]), y.reshape(-1, y.shape[-1])
+    out = np.empty((xf.shape[0], starts.size))
+    for i in range(xf.shape[0]):
+        xw = np.lib.stride_tricks.sliding_window_view(xf[i], w)[starts]
+        yw = np.lib.stride_tricks.sliding_window_view(yf[i], w)[starts]
+        s = (_window_acf(xw, w)[:, 1 : m + 1] * _window_acf(yw, w)[:, 1 : m + 1] * weight).sum(-1)
+        inv = 1.0 / w + 2.0 / w * s
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[i] = np.clip(1.0 / inv, 2.0, w)
+    return out.reshape(*lead, starts.size)
+
+
+def stcc_significance_bartlett(
+    x: np.ndarray, y: np.ndarray, dt: float, t: np.ndarray, window: float, z: float = 3.0
+) -> np.ndarray:
+    """Per-window significance level z / sqrt(n_eff) of STCC (n_eff: :func:`effective_samples`).
+
+    Under the null of no cross-correlation R at one lag is approximately
+    normal with standard deviation 1/sqrt(n_eff), so a level z = 3 is exceeded
+    with probability 0.135 % per lag (one-sided).  A window of L lags then has a
+    false significant peak with probability about 1 - (1 - 0.00135)^(L - 2)
+    when its lags are independent (white noise: 7.7 % for L = 61), and less
+    when they are correlated (0.9 % measured for AR(1) series with a 50 ms
+    correlation time, 5 s windows at 5 ms).  Returns (..., windows).
+    """
+    return z / np.sqrt(effective_samples(x, y, dt, t, window))
 
 
 def peak_density(tau_hat: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, float, float]:

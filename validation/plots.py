@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from cipcore.models import MODEL_NAMES, get_model
+
 
 def plot_stability_region(
     betas: np.ndarray, taus: np.ndarray, abscissa: np.ndarray, model: str, path: Path
@@ -61,11 +63,13 @@ def fig_lle(curve, points, bstar, path: Path) -> Path:
 def fig_be(series, path: Path) -> Path:
     """Fig. Be: balancing error of one realisation, single and coupled, both engines."""
     fig, axes = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True, constrained_layout=True)
-    for ax, model in zip(axes, ("single", "coupled"), strict=True):
+    for ax, model in zip(axes, MODEL_NAMES, strict=True):
         full, red = series[model]["full"], series[model]["reduced"]
         ax.plot(red.time, red["balancing_error"][0, :, 0], lw=0.8, label="reduced")
         ax.plot(full.time, full["balancing_error"][0, :, 0], lw=0.8, ls="--", label="MuJoCo")
-        ax.set_ylabel(r"$\Delta x$ (m)" if model == "single" else r"$\Delta q_1$ (m)")
+        ax.set_ylabel(
+            r"$\Delta x$ (m)" if get_model(model).n_controllers == 1 else r"$\Delta q_1$ (m)"
+        )
         ax.set_title(f"{model}, beta = {red.attrs['beta']}", fontsize=9)
         ax.legend(fontsize=8)
     axes[-1].set_xlabel("t (s)")
@@ -75,7 +79,7 @@ def fig_be(series, path: Path) -> Path:
 def fig_pwsp(series, peaks, path: Path) -> Path:
     """Fig. pwsp: power spectra of the balancing errors with the two-power-law fits."""
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.8), constrained_layout=True)
-    for ax, model in zip(axes, ("single", "coupled"), strict=True):
+    for ax, model in zip(axes, MODEL_NAMES, strict=True):
         d = peaks[f"pwsp_{model}"]
         ax.loglog(d["f"], d["S"], lw=0.8, label="reduced (long run)")
         for eng, key in (("reduced", "metrics_reduced"), ("MuJoCo", "metrics_full")):
@@ -96,12 +100,15 @@ def fig_pwsp(series, peaks, path: Path) -> Path:
 
 
 def fig_rms(rms, path: Path) -> Path:
-    """Fig. rms: log RMS of each realisation, single vs coupled, with the means."""
+    """Fig. rms: log RMS of each realisation, single vs coupled; solid: median, dashed:
+    geometric mean (the paper draws the means, which one realisation can set)."""
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     for k, (model, c) in enumerate((("single", "C0"), ("coupled", "C3"))):
         r = rms[model]["rms"]
         ax.semilogy(np.arange(r.size), r, ".", color=c, ms=3, label=model)
-        ax.axhline(r.mean(), color=c, lw=1)
+        # the mean of a heavy-tailed sample is unstable: show the median and geometric mean
+        ax.axhline(np.median(r), color=c, lw=1)
+        ax.axhline(np.exp(np.mean(np.log(r))), color=c, lw=1, ls="--")
         del k
     ax.set_xlabel("realisation")
     ax.set_ylabel("RMS of balancing error (m)")

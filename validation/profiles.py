@@ -2,13 +2,15 @@
 
 ``quick`` (the default) exercises every check in a few minutes on two cores;
 ``paper`` uses the paper's realisation counts and durations (100 or 500
-realisations over [0, 1200] s) where the paper states them.
+realisations over [0, 1200] s) where the paper states them, and a small grid of
+the estimator choices the paper leaves unstated; ``robustness`` is ``paper``
+with the full grid of those choices (validation.paper.robustness).
 """
 
 from __future__ import annotations
 
 import zlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -57,6 +59,32 @@ class Profile:
     peak_realizations: int = 16
     spectrum_duration: float = 1200.0
     spectrum_realizations: int = 8
+    # estimator choices the paper leaves unstated (validation.paper.robustness): the fractions
+    # of the duration re-estimated (prefixes of the same simulations) and the grid; keys
+    # missing from the grid take the paper table's defaults
+    robustness_durations: tuple = (0.25, 0.5, 1.0)
+    robustness_grid: dict = field(
+        default_factory=lambda: {
+            "window": (2.5, 5.0, 10.0),
+            "max_lag": (0.2, 0.3),
+            "dominance": (0.5, 0.8),
+            "significance": ("bartlett",),
+            "bins": (0.01,),
+            "duration": (0.5, 1.0),
+            "scale": ("median_std", "mad"),
+            "normalise": (False, True),
+            "half_width": (0.02, 0.1, 0.5),
+            "segment": (10.0, 50.0),
+            "fmax": (20.0,),
+            "threshold": (0.001, 0.01, 0.1),
+            "threshold_reference": ("rms", "median"),
+        }
+    )
+    n_bootstrap: int = 500
+    # the nonlinear stick, eq. (cabrera), beside the linear single model
+    nonlinear_realizations: int = 8
+    nonlinear_duration: float = 600.0
+    nonlinear_floors: tuple = (0.0, 1e-3)
     # rod-length study (validation/studies/rod_length.toml, these settings override it)
     rod_study: dict = field(
         default_factory=lambda: {
@@ -94,6 +122,9 @@ PROFILES = {
         peak_realizations=100,
         spectrum_duration=1200.0,
         spectrum_realizations=32,
+        n_bootstrap=1000,
+        nonlinear_realizations=16,
+        nonlinear_duration=1200.0,
         rod_study={},  # the shipped study as it is
     ),
     # a tiny profile for the test suite: every code path, seconds
@@ -118,6 +149,16 @@ PROFILES = {
         peak_realizations=3,
         spectrum_duration=60.0,
         spectrum_realizations=3,
+        robustness_grid={
+            "window": (2.5, 5.0),
+            "dominance": (0.5, 0.8),
+            "half_width": (0.1, 0.5),
+            "segment": (5.0,),
+            "threshold": (0.01, 0.1),
+        },
+        n_bootstrap=100,
+        nonlinear_realizations=2,
+        nonlinear_duration=40.0,
         rod_study={
             "realizations": 3,
             "duration": 8.0,
@@ -125,3 +166,24 @@ PROFILES = {
         },
     ),
 }
+#: The full grid of estimator choices on the paper's run sizes (``--profile robustness``).
+PROFILES["robustness"] = replace(
+    PROFILES["paper"],
+    name="robustness",
+    robustness_durations=(0.25, 0.5, 1.0),
+    robustness_grid={
+        "window": (2.5, 5.0, 10.0),
+        "max_lag": (0.2, 0.3, 0.5),
+        "dominance": (0.5, 0.6, 0.7, 0.8, 0.9),
+        "significance": ("bartlett", "none"),
+        "bins": (0.005, 0.01, 0.02),
+        "duration": (0.25, 0.5, 1.0),
+        "scale": ("median_std", "mad"),
+        "normalise": (False, True),
+        "half_width": (0.02, 0.05, 0.1, 0.25, 0.5),
+        "segment": (10.0, 20.0, 50.0, 100.0),
+        "fmax": (10.0, 20.0),
+        "threshold": (0.001, 0.01, 0.1),
+        "threshold_reference": ("rms", "median"),
+    },
+)

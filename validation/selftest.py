@@ -16,6 +16,8 @@ import argparse
 import math
 import time
 
+from cipcore.models import MODEL_NAMES
+
 from .agreement import instrument_checks
 from .faults import CATALOGUE, FAULT_TYPES, Fault, make_fault
 from .stats import FAIL
@@ -23,7 +25,7 @@ from .stats import FAIL
 
 def flagged_by(fault: Fault | None, seed: int, n_realizations: int) -> list[str]:
     """Names of the checks that fail with ``fault`` injected (all of them run)."""
-    models = fault.models if fault is not None else ("single", "coupled")
+    models = fault.models if fault is not None else MODEL_NAMES
     checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models)
     return [c.name for c in checks if c.status == FAIL]
 

@@ -204,3 +204,67 @@ def worst(statuses: list[str]) -> str:
     if INCONCLUSIVE in statuses:
         return INCONCLUSIVE
     return PASS
+
+
+# ------------------------------------------------- heavy-tailed samples
+def geometric_mean(x: np.ndarray, axis: int = -1) -> np.ndarray:
+    """exp(mean(log x)) of positive values (paper Fig. rms plots log RMS)."""
+    return np.exp(np.mean(np.log(np.asarray(x, dtype=float)), axis=axis))
+
+
+STATISTICS = {"median": lambda a: np.median(a, axis=-1), "geometric_mean": geometric_mean,
+              "mean": lambda a: np.mean(a, axis=-1)}  # fmt: skip
+
+
+def bootstrap_ci(
+    x: np.ndarray, statistic: str, n_bootstrap: int = 2000, seed: int = 0
+) -> tuple[float, float, float]:
+    """Estimate and 95 % percentile-bootstrap interval of a statistic of realisations ``x``.
+
+    ``statistic``: "median", "geometric_mean" or "mean"; resampling is over
+    realisations with ``np.random.default_rng(seed)``.
+    """
+    x = np.asarray(x, dtype=float).ravel()
+    f = STATISTICS[statistic]
+    rng = np.random.default_rng(seed)
+    boot = f(x[rng.integers(0, x.size, (n_bootstrap, x.size))])
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    return float(f(x)), float(lo), float(hi)
+
+
+def bootstrap_ratio_ci(
+    a: np.ndarray, b: np.ndarray, statistic: str, n_bootstrap: int = 2000, seed: int = 0
+) -> tuple[float, float, float]:
+    """stat(a) / stat(b) with a 95 % percentile bootstrap, a and b resampled independently."""
+    a = np.asarray(a, dtype=float).ravel()
+    b = np.asarray(b, dtype=float).ravel()
+    f = STATISTICS[statistic]
+    rng = np.random.default_rng(seed)
+    ia = rng.integers(0, a.size, (n_bootstrap, a.size))
+    ib = rng.integers(0, b.size, (n_bootstrap, b.size))
+    boot = f(a[ia]) / f(b[ib])
+    lo, hi = np.percentile(boot, [2.5, 97.5])
+    return float(f(a) / f(b)), float(lo), float(hi)
+
+
+def heavy_tailed_summary(
+    x: np.ndarray, thresholds: tuple[float, ...] = (), n_bootstrap: int = 2000, seed: int = 0
+) -> dict:
+    """Statistics of per-realisation values (e.g. RMS) that stay meaningful for heavy tails.
+
+    Median and geometric mean with 95 % bootstrap intervals; the fraction of
+    realisations above each threshold; and the mean with its interval and the
+    share of the sum carried by the largest realisation, which states how
+    unstable the mean is (near 1: one draw sets it, and another seed moves it
+    by orders of magnitude).
+    """
+    x = np.asarray(x, dtype=float).ravel()
+    x = x[np.isfinite(x)]
+    out: dict[str, Any] = {"n": int(x.size)}
+    for k, stat in enumerate(("median", "geometric_mean", "mean")):
+        v, lo, hi = bootstrap_ci(x, stat, n_bootstrap, seed + k)
+        out[stat] = {"value": v, "ci95": [lo, hi]}
+    out["mean"]["largest_share"] = float(x.max() / x.sum()) if x.sum() > 0 else float("nan")
+    out["log10_spread"] = float(np.log10(x.max() / x.min())) if x.min() > 0 else float("inf")
+    out["fraction_above"] = {f"{t:g}": float(np.mean(x > t)) for t in thresholds}
+    return out

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from cipcore import Trajectory
+from cipcore.models import MODEL_NAMES
 from validation import metrics
 
 from .recording import find_trials, load_trial
@@ -189,7 +190,7 @@ def table(results: list[StickResult], quantity: str) -> dict:
 def condition_ellipses(results: list[StickResult]) -> dict[str, dict]:
     """Mean and standard deviation of (tau_hat, RMS) per condition (Fig. rmstau)."""
     out = {}
-    for mode in ("single", "coupled"):
+    for mode in MODEL_NAMES:
         pts = np.array([(r.tau_hat, r.rms) for r in results if r.mode == mode])
         pts = pts[np.all(np.isfinite(pts), axis=1)] if pts.size else pts
         if len(pts) == 0:

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 from cipcore import ParameterError
+from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import check_count, check_positive
 
 from .task import DURATION, ENGINES, TaskSettings
@@ -124,7 +125,7 @@ def cmd_bots(a: argparse.Namespace) -> int:
     labels = _labels(a.subjects)
     trials = check_count("--trials", a.trials)
     check_count("--seed", a.seed, minimum=0)
-    modes = ("single", "coupled") if a.mode == "both" else (a.mode,)
+    modes = MODEL_NAMES if a.mode == "both" else (a.mode,)
     # one independent stream per (mode, trial, subject), fixed by --seed
     seeds = iter(np.random.SeedSequence(a.seed).generate_state(2 * trials * 2 * len(modes)))
     out = Path(a.out)
@@ -132,7 +133,7 @@ def cmd_bots(a: argparse.Namespace) -> int:
     for mode in modes:
         settings = TaskSettings(mode=mode, duration=a.trial_duration)
         for k in range(1, trials + 1):
-            groups = [[x] for x in labels] if mode == "single" else [labels]
+            groups = [[x] for x in labels] if get_model(mode).n_controllers == 1 else [labels]
             for group in groups:
                 specs = [BotSpec(a.beta, a.tau, a.nu, int(next(seeds))) for _ in group]
                 path = run_bot_trial(settings, specs, group, k, out, engine=a.engine)

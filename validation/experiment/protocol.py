@@ -25,6 +25,8 @@ import math
 import re
 from typing import Any
 
+from cipcore.models import get_model
+
 from .task import MODES
 
 MAX_MESSAGE_BYTES = 2048
@@ -111,7 +113,7 @@ def parse(text: str | bytes) -> dict:
     if not isinstance(token, str) or len(token) > 128:
         raise BadMessage("token must be a string")
     seats = msg.get("seats")
-    n = 1 if mode == "single" else 2
+    n = get_model(mode).n_controllers
     if not isinstance(seats, list) or len(seats) != n:
         raise BadMessage(f"{mode} needs {n} seat(s)")
     seats = [_seat(s) for s in seats]

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from cipcore import Trajectory
+from cipcore.models import MODEL_NAMES, get_model
 from validation import metrics
 from validation.report import html_report, jsonable
 
@@ -38,7 +39,7 @@ def markdown_table(rows: dict, title: str, quantity: str, digits: int) -> list[s
     idx = sorted({k for r in rows.values() for k in r["trials"]})
     head = "| subject | " + " | ".join(str(k) for k in idx) + " | average | sd | paper (A,B) avg |"
     lines = [f"### {title}", "", head, "|" + "---|" * (len(idx) + 4)]
-    for mode in ("single", "coupled"):
+    for mode in MODEL_NAMES:
         keys = [k for k in rows if k[0] == mode]
         if not keys:
             continue
@@ -90,8 +91,8 @@ def fig_move(picks, mode: str, path: Path) -> Path:
         dt = traj.sample_interval
         t = traj.time
         sel = (t >= min(10.0, t[-1] / 2)) & (t < min(10.0, t[-1] / 2) + 5.0)
-        tip = "x_T" if mode == "single" else "q_T"
-        base = "x_M" if mode == "single" else f"q_M{i + 1}"
+        tip = "x_T" if get_model(mode).n_controllers == 1 else "q_T"
+        base = "x_M" if get_model(mode).n_controllers == 1 else f"q_M{i + 1}"
         ax[0, j].plot(t[sel], traj["tip_velocity"][0, sel, i], lw=2.2, label=f"{tip}' (target)")
         ax[0, j].plot(t[sel], traj["base_velocity"][0, sel, i], lw=0.9, label=f"{base}' (subject)")
         ax[0, j].set(
@@ -115,7 +116,7 @@ def fig_move(picks, mode: str, path: Path) -> Path:
         else:
             ax[1, j].text(0.5, 0.5, "trial too short for a spectrum (< 40 s)",
                           ha="center", transform=ax[1, j].transAxes)  # fmt: skip
-        err = "Delta x" if mode == "single" else f"Delta q_{i + 1}"
+        err = "Delta x" if get_model(mode).n_controllers == 1 else f"Delta q_{i + 1}"
         ax[1, j].set(xlabel="f (Hz)", ylabel=f"S of {err}")
     fig.tight_layout()
     fig.savefig(path, dpi=90)

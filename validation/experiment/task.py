@@ -44,9 +44,10 @@ from typing import Protocol
 import numpy as np
 
 from cipcore import BalanceParams, ParameterError
+from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import check_choice, check_positive, whole_steps
 
-MODES = ("single", "coupled")
+MODES = MODEL_NAMES
 #: Paper section 4.1: alpha = beta = 21, gamma = 50, rod length l = 1.
 EXPERIMENT = {"alpha": 21.0, "beta": 21.0, "gamma": 50.0, "rod_length": 1.0}
 #: 50 Hz sampling of the mice and animation of the lines (s)
@@ -95,7 +96,7 @@ class TaskSettings:
 
     @property
     def n_sticks(self) -> int:
-        return 1 if self.mode == "single" else 2
+        return get_model(self.mode).n_controllers
 
     @property
     def offsets(self) -> np.ndarray:
