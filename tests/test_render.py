@@ -40,3 +40,26 @@ def test_view_without_a_display_is_one_line(capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "display" in err[0] and "render" in err[0]
     assert "DISPLAY" not in os.environ
+
+
+def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys):
+    """The run's figures stage renders two clips and the HTML report embeds them as GIFs."""
+    import dataclasses
+
+    from validation.harness import clips
+    from validation.profiles import PROFILES
+    from validation.report import html_report
+
+    prof = dataclasses.replace(PROFILES["quick"], clip_duration=0.4)
+    files = clips(tmp_path, prof)
+    err = capsys.readouterr().err
+    if not files and "no offscreen OpenGL" in err:
+        pytest.skip(err.strip().splitlines()[-1])
+    assert [f.name for f in files] == [
+        "clip_inside_small_angle.gif",
+        "clip_outside_small_angle.gif",
+    ]
+    md = "\n".join(f"![{f.name}]({f.name})" for f in files)
+    page = html_report(md, tmp_path)
+    assert page.count('src="data:image/gif;base64,') == 2
+    assert clips(tmp_path, dataclasses.replace(prof, clip_duration=0.0)) == []

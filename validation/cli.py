@@ -56,10 +56,12 @@ def build_parser() -> CLIParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:  # --help, --version, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    args.argv = argv  # a command that must run in a fresh process (render) re-runs these
     try:
         return int(args.func(args) or 0)
     except ParameterError as exc:

@@ -178,7 +178,7 @@ def run_validation(
             return nonlinear
         if name == "rod-length study":
             return agreement.rod_length_study(profile, out_dir, workers)
-        return _figures(out_dir, state) if figures else []
+        return _figures(out_dir, state, profile) if figures else []
 
     try:
         for name in STAGES:
@@ -208,7 +208,7 @@ def run_validation(
     return results
 
 
-def _figures(out_dir: Path, state: dict[str, Any]) -> list[Path]:
+def _figures(out_dir: Path, state: dict[str, Any], profile: Profile) -> list[Path]:
     from .sweep import plot_metric
 
     _, d = state["lambda1 agreement"]
@@ -225,7 +225,41 @@ def _figures(out_dir: Path, state: dict[str, Any]) -> list[Path]:
     for metric in ("max_angle", "agreement"):
         png = out_dir / f"fig_rod_length_{metric}.png"
         files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
-    return files
+    return files + clips(out_dir, profile)
+
+
+def clips(out_dir: Path, profile: Profile) -> list[Path]:
+    """GIFs of a coupled MuJoCo run inside and one leaving the small-angle regime.
+
+    Each is ``cip-validate render`` in a child process (offscreen OpenGL must
+    be chosen before MuJoCo is imported, which this process has done), with
+    the profile's seed and the paper's coupled gain.  Where no offscreen
+    OpenGL exists the clips are left out with the reason on stderr; the run
+    goes on.
+    """
+    import subprocess
+    import sys
+
+    from .profiles import PAPER_BETA
+
+    if profile.clip_duration <= 0:
+        return []
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    out = []
+    for label, amp in zip(("inside", "outside"), profile.clip_amplitudes, strict=True):
+        path = out_dir / f"clip_{label}_small_angle.gif"
+        cmd = [sys.executable, "-m", "validation.cli", "render", "--engine", "mujoco",
+               "--model", "coupled", "--beta", str(PAPER_BETA["coupled"]),
+               "--amplitude", str(amp), "--duration", str(profile.clip_duration),
+               "--seed", str(profile.seed), "--fps", "15", "--width", "320", "--height",
+               "200", "--out", str(path)]  # fmt: skip
+        done = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        if done.returncode != 0 or not path.exists():
+            why = (done.stderr.strip().splitlines() or ["no output"])[-1]
+            print(f"cip-validate: clip {path.name} left out: {why}", file=sys.stderr)
+            continue
+        out.append(path)
+    return out
 
 
 def _divergence(state: dict[str, Any]) -> list[dict]:

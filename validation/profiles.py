@@ -86,6 +86,10 @@ class Profile:
     nonlinear_duration: float = 600.0
     nonlinear_floors: tuple = (0.0, 1e-3)
     # rod-length study (validation/studies/rod_length.toml, these settings override it)
+    #: s of the two clips the report embeds (a coupled MuJoCo run inside and one leaving
+    #: the small-angle regime, initial errors clip_amplitudes in m); 0: no clips
+    clip_duration: float = 6.0
+    clip_amplitudes: tuple = (1e-3, 0.1)
     rod_study: dict = field(
         default_factory=lambda: {
             "realizations": 6,
@@ -130,6 +134,7 @@ PROFILES = {
     # a tiny profile for the test suite: every code path, seconds
     "smoke": Profile(
         name="smoke",
+        clip_duration=0.0,
         lyapunov_gains={"single": (19.5, 23.0), "coupled": (20.5, 23.0)},
         lyapunov_duration=20.0,
         lyapunov_realizations=3,

@@ -268,7 +268,8 @@ def html_report(md: str, out_dir: Path) -> str:
         if line.startswith("!["):
             name = line[line.index("(") + 1 : -1]
             data = base64.b64encode((out_dir / name).read_bytes()).decode()
-            body.append(f'<figure><img src="data:image/png;base64,{data}" alt="{name}">'
+            mime = "image/gif" if name.endswith(".gif") else "image/png"
+            body.append(f'<figure><img src="data:{mime};base64,{data}" alt="{name}">'
                         f"<figcaption>{html.escape(name)}</figcaption></figure>")  # fmt: skip
         elif line.startswith("#"):
             level = len(line) - len(line.lstrip("#"))

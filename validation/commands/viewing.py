@@ -67,7 +67,18 @@ def cmd_render(a: argparse.Namespace) -> int:
 
     out = check_out_file("--out", a.out, (".gif", ".mp4"))
     check_video_path("--out", out)
-    choose_gl_backend()
+    if choose_gl_backend() == "already initialised":
+        # MuJoCo was imported (by this process) before an offscreen OpenGL backend
+        # could be chosen: render in a child process that chooses it first
+        import os
+        import subprocess
+        import sys
+
+        from ..animation import GL_BACKENDS
+
+        env = {**os.environ, "MUJOCO_GL": GL_BACKENDS[0]}
+        cmd = [sys.executable, "-m", "validation.cli", *a.argv]
+        return subprocess.run(cmd, env=env).returncode
     tr, mj_model, pos, decimate = _simulate(a)
     frames = render_frames(mj_model, pos, a.width, a.height)
     fps = 1.0 / (decimate * tr.attrs["dt"])
