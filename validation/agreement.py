@@ -104,15 +104,12 @@ def series_metrics(tr: Trajectory, profile: Profile, tau: float, segment: float)
     lo = max(lo, 2.0 / segment)
     centres, bands = metrics.band_log_power(f, s, lo, hi, n_bins=8)
     fit = metrics.fit_two_power_laws(f, s, lo, hi, n_bins=16, n_bootstrap=100, seed=profile.seed)
+    vt, vb = tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0]
     t, lags, r = metrics.stcc(
-        tr["tip_velocity"][..., 0],
-        tr["base_velocity"][..., 0],
-        dt,
-        profile.stcc_window,
-        profile.stcc_max_lag,
-        profile.stcc_stride,
+        vt, vb, dt, profile.stcc_window, profile.stcc_max_lag, profile.stcc_stride
     )
-    sig = metrics.stcc_significance(round(profile.stcc_window / dt))
+    # per-window level from the effective number of independent samples (Bartlett)
+    sig = metrics.stcc_significance_bartlett(vt, vb, dt, t, profile.stcc_window)
     th = metrics.first_dominant_peak(r, lags, significance=sig)
     with np.errstate(invalid="ignore"):
         fast = np.nanmean(np.where(np.isfinite(th), th < tau, np.nan), axis=-1)

@@ -89,10 +89,11 @@ def trajectory_metrics(
             rel = np.linalg.norm(ef - er, axis=1) / np.linalg.norm(er, axis=1)
         out["agreement"] = rel.tolist()
     if "tau_hat" in study.metrics:
-        _, lags, r = mt.stcc(tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0], dt,
-                             STCC.stcc_window, STCC.stcc_max_lag,
+        vt, vb = tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0]
+        t, lags, r = mt.stcc(vt, vb, dt, STCC.stcc_window, STCC.stcc_max_lag,
                              STCC.stcc_stride)  # fmt: skip
-        sig = mt.stcc_significance(int(STCC.stcc_window / dt))
+        # per-window level from the effective number of independent samples (Bartlett)
+        sig = mt.stcc_significance_bartlett(vt, vb, dt, t, STCC.stcc_window)
         th = mt.first_dominant_peak(r, lags, significance=sig)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no dominant peak
