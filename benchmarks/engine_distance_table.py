@@ -15,18 +15,13 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
 from cip.model import CIPParams
 from cipcore.params import BalanceParams
 from cipcore.registry import REFERENCE, availability, get_engine
+from validation.metrics import relative_l2
 
 MASS_RATIOS = "1e-3,1e-5,1e-7"
 BASELINE = "mujoco"
-
-
-def _distance(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 
 
 def main() -> None:
@@ -59,8 +54,8 @@ def main() -> None:
                     model, p, a.duration, a.realizations, physical=phys, **run
                 )["balancing_error"]
                 base = e if base is None else base
-                print(f"| {model} | {mr:g} | {name} | {_distance(e, ref['balancing_error']):.4e}"
-                      f" | {_distance(e, base):.3e} |")  # fmt: skip
+                print(f"| {model} | {mr:g} | {name} | {relative_l2(e, ref['balancing_error']):.4e}"
+                      f" | {relative_l2(e, base):.3e} |")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -20,7 +20,7 @@ from cipcore.schema import Trajectory, check_amplitude
 
 from ._kernels import advance_positions
 from .lyapunov import lyapunov
-from .simulate import simulate
+from .simulate import record_fields, simulate
 
 #: The reduced kernel has no chunk limit of its own; the runner accepts this many steps.
 MAX_CHUNK = 1 << 20
@@ -50,14 +50,7 @@ class ReducedChunks:
             p.alpha, p.beta, p.gamma, p.noise_scale, p.dt, True, self.step, 1, rec,
         )  # fmt: skip
         self.step += n
-        return {
-            "tip_position": rec[..., 0],
-            "tip_velocity": rec[..., 1],
-            "base_position": rec[..., 2],
-            "base_velocity": rec[..., 3],
-            "balancing_error": rec[..., 0] - rec[..., 2],
-            "balancing_error_velocity": rec[..., 1] - rec[..., 3],
-        }
+        return record_fields(rec)
 
 
 class ReducedEngine:
@@ -74,6 +67,10 @@ class ReducedEngine:
     )
     notes = "the paper's reduced linear model, numba kernel"
 
+    #: the chunk runner class and the simulate function (the GPU engine swaps both)
+    chunks: Any = ReducedChunks
+    simulate_fn: Any = staticmethod(simulate)
+
     def unavailable(self) -> str | None:
         return None
 
@@ -86,7 +83,7 @@ class ReducedEngine:
         *,
         physical: Any = None,
     ) -> ReducedChunks:
-        return ReducedChunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
+        return self.chunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
 
     def simulate(
         self,
@@ -98,7 +95,9 @@ class ReducedEngine:
         **options: Any,
     ) -> Trajectory:
         options.pop("physical", None)
-        return simulate(get_model(model).name, params, duration, n_realizations, seed, **options)
+        return self.simulate_fn(
+            get_model(model).name, params, duration, n_realizations, seed, **options
+        )
 
     def lyapunov(
         self,

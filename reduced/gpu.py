@@ -31,7 +31,6 @@ from cipcore.gpu import declared_device, warp_device, warp_unavailable
 from cipcore.models import BalanceModel, get_model
 from cipcore.noise import GainNoise, make_noise
 from cipcore.params import STEPPERS, BalanceParams, check_choice, whole_steps
-from cipcore.results import LyapunovResult
 from cipcore.schema import (
     COMMON_FIELDS,
     DEFAULT_MAX_BYTES,
@@ -41,8 +40,8 @@ from cipcore.schema import (
     plan_recording,
 )
 
-from .lyapunov import lyapunov
-from .simulate import _store
+from .engine import ReducedEngine
+from .simulate import _store, record_fields
 
 #: Steps per uploaded chunk of draws (R * 4096 * C * 8 bytes on the device).
 GPU_CHUNK_STEPS = 4096
@@ -275,18 +274,15 @@ class GpuChunks:
 
     def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]:
         rec = self.dev.advance(xi)
-        return {
-            "tip_position": rec[..., 0],
-            "tip_velocity": rec[..., 1],
-            "base_position": rec[..., 2],
-            "base_velocity": rec[..., 3],
-            "balancing_error": rec[..., 0] - rec[..., 2],
-            "balancing_error_velocity": rec[..., 1] - rec[..., 3],
-        }
+        return record_fields(rec)
 
 
-class ReducedGpuEngine:
-    """The reduced models with the trajectory kernel on a warp device (float64)."""
+class ReducedGpuEngine(ReducedEngine):
+    """The reduced models with the trajectory kernel on a warp device (float64).
+
+    Everything but the device kernel is the reference engine's; lambda1 is
+    computed by the CPU kernel (module docstring): the same draws, float64.
+    """
 
     name = "reduced-gpu"
     capabilities = Capabilities(
@@ -298,46 +294,11 @@ class ReducedGpuEngine:
         trajectory_tolerance=1e-12,
     )
     notes = "the reduced model as a warp kernel, one thread per realisation"
+    chunks = GpuChunks
+    simulate_fn = staticmethod(simulate_gpu)
 
     def unavailable(self) -> str | None:
         return warp_unavailable(("warp",))
-
-    def runner(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        n_realizations: int,
-        amplitude: float,
-        *,
-        physical: Any = None,
-    ) -> GpuChunks:
-        return GpuChunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
-
-    def simulate(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        duration: float,
-        n_realizations: int = 1,
-        seed: int = 0,
-        **options: Any,
-    ) -> Trajectory:
-        options.pop("physical", None)
-        return simulate_gpu(get_model(model).name, params, duration, n_realizations, seed,
-                            **options)  # fmt: skip
-
-    def lyapunov(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        duration: float,
-        n_realizations: int = 8,
-        seed: int = 0,
-        **options: Any,
-    ) -> LyapunovResult:
-        """lambda1 by the CPU kernel (module docstring): the same draws, float64."""
-        options.pop("physical", None)
-        return lyapunov(get_model(model).name, params, duration, n_realizations, seed, **options)
 
 
 ENGINE = ReducedGpuEngine()

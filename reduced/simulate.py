@@ -124,6 +124,19 @@ def simulate(
     return Trajectory(time=time, data=out, attrs=attrs)
 
 
+def record_fields(rec: np.ndarray) -> dict[str, np.ndarray]:
+    """Every common schema field from kernel samples rec (..., 4) = [tip pos, tip vel,
+    base pos, base vel] (m, m/s): positions, velocities and the balancing error e = x_T - x_M."""
+    return {
+        "tip_position": rec[..., 0],
+        "tip_velocity": rec[..., 1],
+        "base_position": rec[..., 2],
+        "base_velocity": rec[..., 3],
+        "balancing_error": rec[..., 0] - rec[..., 2],
+        "balancing_error_velocity": rec[..., 1] - rec[..., 3],
+    }
+
+
 def _store(out: dict[str, np.ndarray], rec: np.ndarray, block: slice, j0: int, j1: int) -> None:
     """Copy recorded samples [tip pos, tip vel, base pos, base vel] into the schema's fields."""
     cols = {"tip_position": 0, "tip_velocity": 1, "base_position": 2, "base_velocity": 3}

@@ -132,9 +132,7 @@ def trajectory_distance(
 ) -> float:
     """Relative L2 distance of the balancing errors over [0, window) s, all realisations."""
     k = int(np.searchsorted(full.time, window))
-    ef = full["balancing_error"][:, :k].astype(float)
-    er = red["balancing_error"][:, :k].astype(float)
-    return float(np.linalg.norm(ef - er) / np.linalg.norm(er))
+    return metrics.relative_l2(full["balancing_error"][:, :k], red["balancing_error"][:, :k])
 
 
 def run_pair(

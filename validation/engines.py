@@ -43,6 +43,7 @@ from cipcore.models import MODEL_NAMES
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import REFERENCE, availability, check_engine_name, engine_names, get_engine
 
+from .metrics import relative_l2
 from .profiles import PAPER_BETA
 from .stats import FAIL, INCONCLUSIVE, PASS, ci_overlap, worst
 
@@ -90,7 +91,7 @@ def _distance(a: np.ndarray, b: np.ndarray) -> float:
     """Relative L2 distance ||a - b|| / ||b|| (inf when a is not finite)."""
     if not np.all(np.isfinite(a)):
         return float("inf")
-    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+    return relative_l2(a, b)
 
 
 def _trajectory(engine, prof: EngineProfile, seed: int, threads: int | None) -> dict:

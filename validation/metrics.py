@@ -126,6 +126,19 @@ def band_log_power(f: np.ndarray, s: np.ndarray, fmin: float, fmax: float, n_bin
 
 
 # ---------------------------------------------------------- amplitudes
+def relative_l2(a: np.ndarray, b: np.ndarray, axis: int | None = None) -> np.ndarray | float:
+    """Trajectory distance ||a - b|| / ||b|| (relative L2; over ``axis``, or all of it).
+
+    The one trajectory distance of the suite: an engine's balancing error ``a``
+    against a reference's ``b`` under the same noise (dimensionless).
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = np.linalg.norm(a - b, axis=axis) / np.linalg.norm(b, axis=axis)
+    return float(d) if axis is None else d
+
+
 def rms(x: np.ndarray, axis: int = -1) -> np.ndarray:
     """Root mean square over time of each realisation (paper Fig. rms)."""
     x = np.asarray(x, dtype=float)

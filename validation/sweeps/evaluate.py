@@ -85,9 +85,7 @@ def trajectory_metrics(
         k = ref.time.size
         ef = tr["balancing_error"][:, :k, 0].astype(float)
         er = ref["balancing_error"][..., 0]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rel = np.linalg.norm(ef - er, axis=1) / np.linalg.norm(er, axis=1)
-        out["agreement"] = rel.tolist()
+        out["agreement"] = mt.relative_l2(ef, er, axis=1).tolist()
     if "tau_hat" in study.metrics:
         vt, vb = tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0]
         t, lags, r = mt.stcc(vt, vb, dt, STCC.stcc_window, STCC.stcc_max_lag,
