@@ -111,7 +111,7 @@ def _labels(text: str) -> list[str]:
     from .protocol import LABEL
 
     labels = [x.strip() for x in text.split(",")]
-    if len(labels) != 2 or not all(LABEL.match(x) for x in labels) or labels[0] == labels[1]:
+    if len(labels) != 2 or not all(LABEL.fullmatch(x) for x in labels) or labels[0] == labels[1]:
         raise ParameterError(f"--subjects must be two different labels like A,B; got {text!r}")
     return labels
 
