@@ -46,6 +46,11 @@ def register(subparsers) -> None:
     a.add_argument("dir", help="directory of recordings")
     a.add_argument("--out", default=None, help="report directory (default DIR/analysis)")
     a.add_argument("--no-figures", action="store_true")
+    a.add_argument(
+        "--include-incomplete", action="store_true",
+        help="include trials cut short from outside (abort, disconnect, server_stop, "
+        "unfinalised) in the averages (default: shown but left out)",
+    )  # fmt: skip
     a.set_defaults(func=cmd_analyze)
 
     b = sub.add_parser("bots", help="bot-vs-bot trials at full speed, no browser")
@@ -153,7 +158,8 @@ def cmd_analyze(a: argparse.Namespace) -> int:
     if not find_trials(d):
         raise ParameterError(f"DIR {a.dir!r} holds no recordings (*.jsonl / *.npz)")
     out = Path(a.out) if a.out else d / "analysis"
-    paths = write_report(d, out, figures=not a.no_figures)
+    paths = write_report(d, out, figures=not a.no_figures,
+                         include_incomplete=a.include_incomplete)  # fmt: skip
     for p in paths:
         print(p)
     return 0
