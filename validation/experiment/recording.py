@@ -92,8 +92,8 @@ class Recorder:
             self._sync()
 
     def event(self, kind: str, row: list) -> None:
-        """Append one client event line (:data:`EVENT_COLUMNS`); synced with the samples."""
-        self._write({kind: row})
+        """Append one client event line (:data:`EVENT_COLUMNS`); flushed with the next sample."""
+        self._f.write(_json({kind: row}) + "\n")
 
     def finalize(self, end: dict) -> Path:
         """Write the end record, close the log and write ``<stem>.npz``; returns its path."""

@@ -127,7 +127,8 @@ class Session:
         return {"type": "session", "phase": self.phase, "mode": self.settings.mode,
                 "trial": self.trial_index, "code": self.code,
                 "seats": [{"kind": s.kind, "label": s.label, "taken": s.taken,
-                           "ready": s.ready or s.kind == "bot"} for s in self.seats]}  # fmt: skip
+                           "ready": s.ready or s.kind == "bot"} for s in self.seats],
+                "preview": self.preview()}  # fmt: skip
 
     async def set_ready(self, seat: int | None) -> None:
         if seat is not None:

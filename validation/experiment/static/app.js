@@ -37,9 +37,13 @@ function draw() {
     ctx.moveTo(toPx(tips[i]), 0); ctx.lineTo(toPx(tips[i]), H); ctx.stroke();
     ctx.lineWidth = 2; ctx.beginPath();              // thin line: lower end (the mouse)
     ctx.moveTo(toPx(bases[i]), 0); ctx.lineTo(toPx(bases[i]), H); ctx.stroke();
-    const who = seatInfo[i] ? seatInfo[i].label : "seat " + (i + 1);
-    ctx.fillStyle = COLORS[i];
-    ctx.fillText(who + (i === seat ? " (you)" : ""), toPx(bases[i]) + 6, H - 12 - 18 * i);
+  }
+  for (let i = 0; i < tips.length; i++) {  // name tags on a white ground, beside the thin line
+    const who = (seatInfo[i] ? seatInfo[i].label : "seat " + (i + 1)) + (i === seat ? " (you)" : "");
+    const w = ctx.measureText(who).width, y = H - 14 - 22 * i;
+    const x = i === 0 ? toPx(bases[i]) - w - 10 : toPx(bases[i]) + 10;
+    ctx.fillStyle = "rgba(255,255,255,0.9)"; ctx.fillRect(x - 3, y - 15, w + 6, 20);
+    ctx.fillStyle = COLORS[i]; ctx.fillText(who, x, y);
   }
   ctx.fillStyle = "#333"; ctx.font = "16px sans-serif";
   ctx.fillText(running ? "t = " + frameMsg.t.toFixed(2) + " s" : "not started", 10, 20);
@@ -49,11 +53,10 @@ function draw() {
 }
 
 function clientInfo() {
-  const r = canvas.getBoundingClientRect();
   const zoom = window.outerWidth > 0 && window.innerWidth > 0 ?
     window.outerWidth / window.innerWidth : 1;
   return { type: "client", user_agent: navigator.userAgent.slice(0, 512),
-           screen: [screen.width, screen.height], canvas: [r.width, r.height],
+           screen: [screen.width, screen.height], canvas: [canvas.clientWidth, canvas.clientHeight],
            window: [window.innerWidth, window.innerHeight],
            device_pixel_ratio: window.devicePixelRatio || 1,
            zoom: Math.min(Math.max(zoom, 0.01), 100), colors: COLORS.slice(0, seatInfo.length || 1) };
@@ -61,6 +64,9 @@ function clientInfo() {
 
 function showSeats(m) {
   seatInfo = m.seats;
+  if (m.phase === "waiting" && m.preview && !running) {  // where the lines will start
+    frameMsg = { tips: m.preview.tips, bases: m.preview.bases, t: 0 }; draw();
+  }
   const parts = m.seats.map((s, i) =>
     '<span class="' + (i === seat ? "me" : "") + '"><span class="swatch" style="background:' +
     COLORS[i] + '"></span>' + COLOR_NAMES[i] + ": " + s.label + (s.kind === "bot" ? " (bot)" : "") +
@@ -157,7 +163,13 @@ function checked(build) {
   try { error(""); send(build()); } catch (e) { error(e.message); }
 }
 
-$("mode").onchange = () => $("partner-box").classList.toggle("hidden", $("mode").value !== "coupled");
+function updateControls() {  // the bot's settings only mean something when a seat is a bot
+  const coupled = $("mode").value === "coupled";
+  $("partner-box").classList.toggle("hidden", !coupled);
+  const bot = $("me").value === "bot" || (coupled && $("partner").value === "bot");
+  for (const id of ["beta", "tau", "nu", "seed"]) $(id).disabled = !bot;
+}
+for (const id of ["mode", "me", "partner"]) $(id).onchange = updateControls;
 $("create").onclick = () => checked(() => {
   const mode = $("mode").value;
   const seats = [seatSpec($("me").value, "label")];
@@ -180,8 +192,9 @@ document.addEventListener("keydown", (e) => { if (e.key === "Escape" && !ended &
 // the mouse: canvas pixel 1..1200 (fractional), sent at most every 10 ms with its event time
 canvas.addEventListener("pointerdown", (e) => canvas.setPointerCapture(e.pointerId));
 canvas.addEventListener("pointermove", (e) => {
-  const r = canvas.getBoundingClientRect();
-  lastX = 1 + (e.clientX - r.left) * (W - 1) / r.width; lastT = e.timeStamp;
+  const r = canvas.getBoundingClientRect();  // the drawing area, inside the border
+  lastX = 1 + (e.clientX - r.left - canvas.clientLeft) * (W - 1) / canvas.clientWidth;
+  lastT = e.timeStamp;
 });
 setInterval(() => {
   if (seat !== null && lastX !== null && lastX !== sentX) {
@@ -192,6 +205,7 @@ setInterval(() => {  // frame draw times, twice a second
   if (drawnK.length) { send({ type: "drawn", k: drawnK.splice(0, 60), t: drawnT.splice(0, 60) }); }
 }, 500);
 
+updateControls();
 if (code) { $("create-box").classList.add("hidden"); $("join-box").classList.remove("hidden"); }
 draw();
 connect();
