@@ -40,6 +40,11 @@ def register(subparsers) -> None:
     s.add_argument("--out", default="experiment-data", help="directory of the recordings")
     s.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
     s.add_argument("--countdown", type=int, default=3, help="seconds before a trial")
+    s.add_argument(
+        "--allow-host", action="append", default=[], metavar="NAME",
+        help="a host name under which pages may reach the server (repeatable; IP addresses "
+        "and localhost are always allowed)",
+    )  # fmt: skip
     s.set_defaults(func=cmd_serve)
 
     a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau")
@@ -85,7 +90,7 @@ def cmd_serve(a: argparse.Namespace) -> int:
         handlers=[logging.StreamHandler(sys.stderr), logging.FileHandler(out / "server.log")],
     )  # fmt: skip
     config = ServerConfig(out_dir=out, engine=a.engine, duration=a.trial_duration,
-                          countdown=a.countdown)  # fmt: skip
+                          countdown=a.countdown, allowed_hosts=tuple(a.allow_host))  # fmt: skip
 
     async def main() -> None:
         try:

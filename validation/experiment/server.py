@@ -18,9 +18,9 @@
   needs the seat's secret.
 * Nothing secret is logged: the access log shows paths without their query
   (the token, the join code), and sessions are named by a short public id.
-* A connection must deliver a complete request header within
-  :attr:`ServerConfig.header_timeout` seconds and is closed after
-  :attr:`ServerConfig.keepalive_timeout` seconds idle between requests; an
+* An HTTP connection that goes :attr:`ServerConfig.idle_timeout` seconds
+  without a complete request (silent after opening, a header trickling in,
+  idle after a response) is closed (aiohttp's default would wait an hour); an
   open WebSocket is pinged every 10 s and closed when it stops answering.
 """
 
@@ -35,7 +35,6 @@ import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
 from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
@@ -61,10 +60,9 @@ class ServerConfig:
     token: str = field(default_factory=lambda: secrets.token_urlsafe(16))
     #: host names (besides IP addresses and localhost) under which /ws may be reached
     allowed_hosts: tuple[str, ...] = ()
-    #: seconds a connection may take to send a complete request header
-    header_timeout: float = 10.0
-    #: seconds an HTTP connection may stay idle between requests
-    keepalive_timeout: float = 15.0
+    #: seconds an HTTP connection may go without a complete request: from its opening, or
+    #: since its last response, also while a header trickles in (aiohttp's keep-alive timer)
+    idle_timeout: float = 15.0
 
 
 #: static files and their types (every file here exists under ``static/``)
@@ -79,77 +77,6 @@ class _AccessLog(AbstractAccessLogger):
     def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
         self.logger.info("%s %s %s %d %.1f ms", request.remote, request.method, request.path,
                          response.status, time * 1e3)  # fmt: skip
-
-
-class _HeaderGuard:
-    """Wraps aiohttp's protocol: closes a connection that starts a request (or opens)
-    and does not complete its header within ``timeout`` s.  A WebSocket upgrade ends
-    the watch (the socket's own heartbeat takes over)."""
-
-    def __init__(self, inner: Any, timeout: float) -> None:
-        self._inner, self._timeout = inner, timeout
-        self._timer: asyncio.TimerHandle | None = None
-        self._tail = b""
-        self._watching = True
-        self._transport: Any = None
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._inner, name)
-
-    def _arm(self) -> None:
-        if self._timer is None:
-            self._timer = asyncio.get_running_loop().call_later(self._timeout, self._expire)
-
-    def _disarm(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
-
-    def _expire(self) -> None:
-        log.info("closed a connection: no complete request header within %g s", self._timeout)
-        self._transport.close()
-
-    def connection_made(self, transport: Any) -> None:
-        self._transport = transport
-        self._arm()
-        self._inner.connection_made(transport)
-
-    def data_received(self, data: bytes) -> None:
-        if self._watching:
-            buf = self._tail + data
-            end = buf.rfind(b"\r\n\r\n")
-            if end < 0:
-                self._arm()
-                self._tail = buf[-4096:]
-            else:
-                self._disarm()
-                head, self._tail = buf[:end].lower(), buf[end + 4 :]
-                if b"upgrade: websocket" in head:
-                    self._watching = False
-                elif self._tail:
-                    self._arm()
-        self._inner.data_received(data)
-
-    def connection_lost(self, exc: Exception | None) -> None:
-        self._disarm()
-        self._inner.connection_lost(exc)
-
-
-class _GuardedSite(web.SockSite):
-    """A socket site whose connections are wrapped in :class:`_HeaderGuard`."""
-
-    def __init__(self, runner: web.AppRunner, sock: socket.socket, timeout: float) -> None:
-        super().__init__(runner, sock)
-        self._guard_timeout = timeout
-
-    async def start(self) -> None:
-        await web.BaseSite.start(self)
-        server = self._runner.server
-        loop = asyncio.get_running_loop()
-        self._server = await loop.create_server(
-            lambda: _HeaderGuard(server(), self._guard_timeout), sock=self._sock,
-            backlog=self._backlog,
-        )  # fmt: skip
 
 
 def _static(name: str) -> bytes:
@@ -359,12 +286,12 @@ async def start(
     with the access token, and the server object."""
     server = ExperimentServer(config)
     runner = web.AppRunner(server.app(), handle_signals=False, access_log_class=_AccessLog,
-                           keepalive_timeout=config.keepalive_timeout)  # fmt: skip
+                           keepalive_timeout=config.idle_timeout)  # fmt: skip
     await runner.setup()
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind((host, port))
-    site = _GuardedSite(runner, sock, config.header_timeout)
+    site = web.SockSite(runner, sock)
     await site.start()
     bound = sock.getsockname()[1]
     shown = f"[{host}]" if ":" in host else host
