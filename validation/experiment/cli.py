@@ -34,14 +34,14 @@ def register(subparsers) -> None:
     sub.required = True
 
     s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)")
-    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    s.add_argument("--port", default="8050", help="0 picks a free port")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    s.add_argument("--port", default="8050", help="TCP port, 0..65535 (0 picks a free one)")
     s.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
     s.add_argument("--out", default="experiment-data", help="directory of the recordings")
-    s.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
-    s.add_argument("--countdown", type=int, default=3, help="seconds before a trial")
+    s.add_argument("--trial-duration", type=float, default=DURATION, help="trial length (s), > 0")
+    s.add_argument("--countdown", type=int, default=3, help="countdown before a trial (s), >= 0")
     s.add_argument(
-        "--allow-host", action="append", default=[], metavar="NAME",
+        "--allow-host", action="append", default=argparse.SUPPRESS, metavar="NAME",
         help="a host name under which pages may reach the server (repeatable; IP addresses "
         "and localhost are always allowed)",
     )  # fmt: skip
@@ -49,12 +49,14 @@ def register(subparsers) -> None:
 
     a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau")
     a.add_argument("dir", help="directory of recordings")
-    a.add_argument("--out", default=None, help="report directory (default DIR/analysis)")
-    a.add_argument("--no-figures", action="store_true")
+    a.add_argument(
+        "--out", default=argparse.SUPPRESS, help="report directory (default: DIR/analysis)"
+    )
+    a.add_argument("--no-figures", action="store_true", help="write the tables only")
     a.add_argument(
         "--include-incomplete", action="store_true",
         help="include trials cut short from outside (abort, disconnect, server_stop, "
-        "unfinalised) in the averages (default: shown but left out)",
+        "unfinalised) in the averages; without it they are shown but left out",
     )  # fmt: skip
     a.set_defaults(func=cmd_analyze)
 
@@ -62,12 +64,12 @@ def register(subparsers) -> None:
     b.add_argument("--out", default="experiment-bots", help="directory of the recordings")
     b.add_argument("--mode", choices=("single", "coupled", "both"), default="both")
     b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
-    b.add_argument("--trials", type=int, default=5, help="trials per subject and mode")
-    b.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
+    b.add_argument("--trials", type=int, default=5, help="trials per subject and mode, >= 1")
+    b.add_argument("--trial-duration", type=float, default=DURATION, help="trial length (s), > 0")
     b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
-    b.add_argument("--tau", type=float, default=0.1, help="bot delay (s)")
+    b.add_argument("--tau", type=float, default=0.1, help="bot delay (s), >= dt = 1 ms, whole ms")
     b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
-    b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws")
+    b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws, >= 0")
     b.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
     b.set_defaults(func=cmd_bots)
 
@@ -89,8 +91,9 @@ def cmd_serve(a: argparse.Namespace) -> int:
         level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s",
         handlers=[logging.StreamHandler(sys.stderr), logging.FileHandler(out / "server.log")],
     )  # fmt: skip
+    hosts = tuple(getattr(a, "allow_host", ()))
     config = ServerConfig(out_dir=out, engine=a.engine, duration=a.trial_duration,
-                          countdown=a.countdown, allowed_hosts=tuple(a.allow_host))  # fmt: skip
+                          countdown=a.countdown, allowed_hosts=hosts)  # fmt: skip
 
     async def main() -> None:
         try:
@@ -162,7 +165,7 @@ def cmd_analyze(a: argparse.Namespace) -> int:
         raise ParameterError(f"DIR must be a directory of recordings, got {a.dir!r}")
     if not find_trials(d):
         raise ParameterError(f"DIR {a.dir!r} holds no recordings (*.jsonl / *.npz)")
-    out = Path(a.out) if a.out else d / "analysis"
+    out = Path(a.out) if getattr(a, "out", None) else d / "analysis"
     paths = write_report(d, out, figures=not a.no_figures,
                          include_incomplete=a.include_incomplete)  # fmt: skip
     for p in paths:
