@@ -319,3 +319,26 @@ def test_rejected_input_is_answered_on_the_page(server, browser, shots):
     assert not p.is_disabled("#create") and p.is_disabled("#ready")  # try again
     assert p.inner_text("#status") == "Choose the session and create it."
     p.context.close()
+
+
+def test_a_reloaded_page_takes_its_seat_back_and_nobody_else_can(server, browser):
+    url, _out = server
+    a = _page(browser, url)
+    _create(a, "coupled", "F", 5, partner="G")
+    link = a.inner_text("#link")
+    b = _page(browser, link)
+    b.fill("#jlabel", "G")
+    b.click("#join")
+    b.wait_for_function("!document.getElementById('ready').disabled")
+    a.reload()  # the tab keeps the seat's secret; its URL now holds the session's code
+    a.wait_for_function("document.getElementById('status').textContent.includes('join')")
+    c = _page(browser, link)  # anyone else with the link: refused
+    c.fill("#jlabel", "F")
+    c.click("#join")
+    c.wait_for_function("document.getElementById('error').textContent !== ''")
+    assert "full" in c.inner_text("#error")
+    a.click("#join")
+    a.wait_for_function("!document.getElementById('ready').disabled")
+    assert a.inner_text("#status") == "You are seat 1 (red). Press Ready when set."
+    for p in (a, b, c):
+        p.context.close()

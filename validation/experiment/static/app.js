@@ -103,7 +103,10 @@ function connect() {
       seat = m.seat; error("");
       $("ready").disabled = false; $("abort").disabled = false;
       $("create").disabled = true; $("join").disabled = true;
-      if (m.secret) sessionStorage.setItem("cipval-seat-" + m.code, m.secret);
+      if (m.secret) {  // a reload of this tab takes the seat back (before the countdown)
+        sessionStorage.setItem("cipval-seat-" + m.code, m.secret);
+        if (!code) history.replaceState(null, "", "?token=" + encodeURIComponent(token) + "&code=" + m.code);
+      }
       if (m.type === "created" && m.seats.some((s) => s.kind === "human" && !s.taken)) {
         $("link").textContent = location.origin + "/?code=" + m.code;
         $("share").classList.remove("hidden");
@@ -131,6 +134,7 @@ function connect() {
              " at t = " + (m.time === null ? "?" : m.time.toFixed(2)) + " s, " + m.samples +
              " samples saved to " + m.file + ". Reload the page for another trial.");
       document.title = "ended: " + m.reason;
+      if (token) history.replaceState(null, "", "?token=" + encodeURIComponent(token));  // reload: a new session
     } else if (m.type === "error") {
       error(m.error);
     }
