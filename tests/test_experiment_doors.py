@@ -178,6 +178,7 @@ def test_a_huge_integer_leaves_the_trial_running(tmp_path):
         ({"Origin": "http://evil.example"}, False),
         ({"Origin": "null"}, False),
         ({"Host": "evil.example:80"}, False),
+        ({"Host": "["}, False),
         ({"Host": "localhost:{port}", "Origin": "http://localhost:{port}"}, True),
     ],
 )

@@ -110,6 +110,12 @@ class ExperimentServer:
 
     def _host_allowed(self, request: web.Request) -> str:
         """Empty when ``request`` may open /ws, else why not (module docstring)."""
+        try:
+            return self._check_host(request)
+        except ValueError:  # a Host or Origin that is not even a URL
+            return "malformed Host or Origin"
+
+    def _check_host(self, request: web.Request) -> str:
         name = urlsplit("//" + request.host).hostname or ""
         try:
             ipaddress.ip_address(name)
