@@ -132,9 +132,24 @@ def _colour_columns(png: Path, box: dict, rgb: tuple) -> np.ndarray:
     return np.flatnonzero(hit)
 
 
+def _pixel(img: np.ndarray, box: dict) -> np.ndarray:
+    """RGB (0..255) at the centre of ``box`` in a screenshot."""
+    return img[round(box["y"] + box["height"] / 2), round(box["x"] + box["width"] / 2)]
+
+
 def _check_countdown(page, png: Path, sticks: int) -> None:
-    """In the countdown the pointer is visible and each stick is drawn at its initial
-    position in its colour: thick line (10 px) at the upper end, thin line at the lower."""
+    """In the countdown the instruction panel is on screen with a colour swatch per seat,
+    the pointer is visible and each stick is drawn at its initial position in its colour:
+    thick line (10 px) at the upper end, thin line at the lower."""
+    img = imread(str(png))[..., :3] * 255
+    panel = page.locator("#help").bounding_box()
+    y, x = round(panel["y"]) + 3, round(panel["x"]) + 3
+    ground = img[y : y + round(panel["height"]) - 6, x : x + round(panel["width"]) - 6]
+    assert np.all(np.abs(ground - (0xFF, 0xFB, 0xE6)) < 3, axis=2).mean() > 0.6  # the panel
+    swatches = page.locator("#seats .swatch")
+    assert swatches.count() == sticks
+    for i, rgb in enumerate((RED, BLUE)[:sticks]):
+        np.testing.assert_allclose(_pixel(img, swatches.nth(i).bounding_box()), rgb, atol=3)
     assert page.eval_on_selector("#screen", "e => getComputedStyle(e).cursor") == "crosshair"
     box = page.locator("#screen").bounding_box()
     tips, bases = (-0.5, 0.5), (-0.6, 0.6)  # screen positions (paper section 4.1)
@@ -231,7 +246,10 @@ def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
         assert "Chrome" in info["user_agent"] and info["canvas"] == [1200, 600]
         assert info["colors"] == ["#c0392b", "#2471a3"] and info["device_pixel_ratio"] == 1
     ev = coupled.attrs["client_events"]
-    assert set(ev["mouse"]["seat"]) == {0, 1} and len(ev["mouse"]["x"]) > 100
+    seats, xs = np.array(ev["mouse"]["seat"]), np.array(ev["mouse"]["x"])
+    for i in (0, 1):  # every pixel the trial used arrived as a logged mouse message
+        used = px[:, i][np.isfinite(px[:, i])]
+        assert set(used[1:]) <= set(xs[seats == i]) and len(set(used)) > 10
     drawn = np.array(ev["drawn"]["k"])[np.array(ev["drawn"]["seat"]) == 0]
     assert drawn.size > 0.8 * coupled.time.size  # the last half second may not be reported
     print(
