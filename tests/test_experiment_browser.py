@@ -203,6 +203,7 @@ def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
     p1 = _page(browser, url)
     _create(p1, "single", "A", 1)
     assert p1.inner_text("#status") == "You are seat 1 (red). Press Ready when set."
+    assert p1.is_disabled("#mode") and p1.is_disabled("#create")  # the session is fixed
     help_text = p1.inner_text("#help")
     assert "thin line" in help_text and "thick line" in help_text and "rigid rod" in help_text
     assert "You are seat 1 (red)" in help_text and "red: A = you" in help_text

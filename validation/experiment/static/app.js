@@ -86,7 +86,7 @@ function showSeats(m) {
 
 function finished() {
   running = false; ended = true; canvas.classList.remove("running");
-  for (const id of ["ready", "abort", "create", "join"]) $(id).disabled = true;
+  for (const id of ["ready", "abort", "create-box", "join-box"]) $(id).disabled = true;
 }
 
 function connect() {
@@ -102,7 +102,7 @@ function connect() {
     if (m.type === "created" || m.type === "joined") {
       seat = m.seat; error("");
       $("ready").disabled = false; $("abort").disabled = false;
-      $("create").disabled = true; $("join").disabled = true;
+      $("create-box").disabled = true; $("join-box").disabled = true;  // settings are fixed now
       if (m.secret) {  // a reload of this tab takes the seat back (before the countdown)
         sessionStorage.setItem("cipval-seat-" + m.code, m.secret);
         if (!code) history.replaceState(null, "", "?token=" + encodeURIComponent(token) + "&code=" + m.code);
