@@ -204,7 +204,7 @@ def test_bad_messages_are_rejected(text):
 
 
 def test_good_messages_and_rate_limit():
-    assert parse('{"type": "mouse", "x": 600.5}') == {"type": "mouse", "x": 600.5}
+    assert parse('{"type": "mouse", "x": 600.5}') == {"type": "mouse", "x": 600.5, "t": None}
     m = parse(json.dumps({"type": "create", "token": "t", "mode": "coupled", "trial": 4, "seats": [
         {"kind": "human", "label": "A"},
         {"kind": "bot", "label": "B", "beta": 21, "tau": 0.1, "nu": 0.6, "seed": 7}]}))  # fmt: skip

@@ -12,7 +12,15 @@ For every trial and every stick i:
   multiple of 0.02 s, as the paper's values are.
 * RMS of the balancing error Dx or Dq_i over the trial (:func:`validation.metrics.rms`),
   in model units and in pixels (1 unit = 1199/6 px).  The paper does not state
-  the unit of its RMS values (2.0 .. 6.1).
+  the unit of its RMS values (2.0 .. 6.1); their size is that of screen
+  pixels (ours are ~0.1 in model units, ~20 px), so the report sets them
+  beside our pixels, never beside model units.
+
+Every recording is kept: two recordings of the same (mode, subject, trial
+index) are both shown and listed as duplicates (:func:`duplicates`).  Trials
+that did not end by themselves (by time or a line out of range) -- aborted,
+disconnected, stopped with the server, or never finalised (:data:`INCOMPLETE`)
+-- are shown but left out of averages and ellipses unless asked for.
 
 The velocities are the recorded ones: the tip's from the model, the lower
 end's the backward difference of the mouse over one frame.
@@ -31,6 +39,13 @@ from validation import metrics
 
 from .recording import find_trials, load_trial
 from .screen import UNIT_PER_PX
+
+#: end reasons of trials cut short from outside; left out of averages unless asked for
+INCOMPLETE = ("abort", "disconnect", "server_stop", "unfinalised")
+#: units of the per-trial quantities
+UNITS = {"tau_hat": "s", "rms": "model units", "rms_px": "px"}
+#: which of the paper's Tables a quantity is compared with (same unit only)
+PAPER_QUANTITY = {"tau_hat": "tau_hat", "rms_px": "rms"}
 
 STCC_WINDOW = 5.0
 STCC_MAX_LAG = 0.5
@@ -79,8 +94,13 @@ class StickResult:
     rms_px: float
     stcc_peak: float
 
+    @property
+    def complete(self) -> bool:
+        """Ended by itself (time, or a line out of range), not cut short from outside."""
+        return self.end not in INCOMPLETE
+
     def as_dict(self) -> dict:
-        return asdict(self)
+        return {**asdict(self), "complete": self.complete}
 
 
 def mean_stcc(
@@ -168,30 +188,51 @@ def analyse_directory(directory: str | Path) -> tuple[list[StickResult], dict[st
     return results, trajs
 
 
-def table(results: list[StickResult], quantity: str) -> dict:
+def table(results: list[StickResult], quantity: str, include_incomplete: bool = False) -> dict:
     """Table STCC (``quantity="tau_hat"``) or RMS (``"rms"``/``"rms_px"``).
 
-    Returns {(mode, subject): {"trials": {index: value}, "average": mean over
-    finite values, "std": sample standard deviation, "n": count}}; rows
-    ordered single then coupled, subjects by label.
+    Returns {(mode, subject): {"trials": {index: [value, ...]}, "ends": {index:
+    [end reason, ...]}, "used": {index: [in the average?, ...]}, "average":
+    mean over the finite values used, "std": sample standard deviation, "n":
+    values used, "excluded": incomplete trials left out}}; every recording
+    keeps its value (duplicates of an index are a list of several), in file
+    order; rows ordered single then coupled, subjects by label.
     """
     rows: dict[tuple[str, str], dict] = {}
     for r in sorted(results, key=lambda r: (r.mode != "single", r.subject, r.trial_index)):
-        row = rows.setdefault((r.mode, r.subject), {"trials": {}})
-        row["trials"][r.trial_index] = getattr(r, quantity)
+        row = rows.setdefault((r.mode, r.subject), {"trials": {}, "ends": {}, "used": {}})
+        use = include_incomplete or r.complete
+        for key, v in (("trials", getattr(r, quantity)), ("ends", r.end), ("used", use)):
+            row[key].setdefault(r.trial_index, []).append(v)
     for row in rows.values():
-        v = np.array([x for x in row["trials"].values() if np.isfinite(x)])
+        pairs = [(x, u) for k in row["trials"] for x, u in zip(row["trials"][k], row["used"][k],
+                                                               strict=True)]  # fmt: skip
+        v = np.array([x for x, u in pairs if u and np.isfinite(x)])
         row["n"] = int(v.size)
+        row["excluded"] = sum(not u for _, u in pairs)
         row["average"] = float(v.mean()) if v.size else float("nan")
         row["std"] = float(v.std(ddof=1)) if v.size > 1 else float("nan")
     return rows
 
 
-def condition_ellipses(results: list[StickResult]) -> dict[str, dict]:
-    """Mean and standard deviation of (tau_hat, RMS) per condition (Fig. rmstau)."""
+def duplicates(results: list[StickResult]) -> list[dict]:
+    """Recordings sharing (mode, subject, trial index): each group with its files."""
+    groups: dict[tuple[str, str, int], list[str]] = {}
+    for r in results:
+        groups.setdefault((r.mode, r.subject, r.trial_index), []).append(r.file)
+    return [{"mode": m, "subject": s, "trial_index": k, "files": files}
+            for (m, s, k), files in sorted(groups.items()) if len(files) > 1]  # fmt: skip
+
+
+def condition_ellipses(
+    results: list[StickResult], include_incomplete: bool = False
+) -> dict[str, dict]:
+    """Mean and standard deviation of (tau_hat, RMS in model units) per condition
+    (Fig. rmstau); incomplete trials left out unless ``include_incomplete``."""
     out = {}
     for mode in MODEL_NAMES:
-        pts = np.array([(r.tau_hat, r.rms) for r in results if r.mode == mode])
+        pts = np.array([(r.tau_hat, r.rms) for r in results
+                        if r.mode == mode and (include_incomplete or r.complete)])  # fmt: skip
         pts = pts[np.all(np.isfinite(pts), axis=1)] if pts.size else pts
         if len(pts) == 0:
             continue

@@ -34,30 +34,42 @@ def register(subparsers) -> None:
     sub.required = True
 
     s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)")
-    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    s.add_argument("--port", default="8050", help="0 picks a free port")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    s.add_argument("--port", default="8050", help="TCP port, 0..65535 (0 picks a free one)")
     s.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
     s.add_argument("--out", default="experiment-data", help="directory of the recordings")
-    s.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
-    s.add_argument("--countdown", type=int, default=3, help="seconds before a trial")
+    s.add_argument("--trial-duration", type=float, default=DURATION, help="trial length (s), > 0")
+    s.add_argument("--countdown", type=int, default=3, help="countdown before a trial (s), >= 0")
+    s.add_argument(
+        "--allow-host", action="append", default=argparse.SUPPRESS, metavar="NAME",
+        help="a host name under which pages may reach the server (repeatable; IP addresses "
+        "and localhost are always allowed)",
+    )  # fmt: skip
     s.set_defaults(func=cmd_serve)
 
     a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau")
     a.add_argument("dir", help="directory of recordings")
-    a.add_argument("--out", default=None, help="report directory (default DIR/analysis)")
-    a.add_argument("--no-figures", action="store_true")
+    a.add_argument(
+        "--out", default=argparse.SUPPRESS, help="report directory (default: DIR/analysis)"
+    )
+    a.add_argument("--no-figures", action="store_true", help="write the tables only")
+    a.add_argument(
+        "--include-incomplete", action="store_true",
+        help="include trials cut short from outside (abort, disconnect, server_stop, "
+        "unfinalised) in the averages; without it they are shown but left out",
+    )  # fmt: skip
     a.set_defaults(func=cmd_analyze)
 
     b = sub.add_parser("bots", help="bot-vs-bot trials at full speed, no browser")
     b.add_argument("--out", default="experiment-bots", help="directory of the recordings")
     b.add_argument("--mode", choices=("single", "coupled", "both"), default="both")
     b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
-    b.add_argument("--trials", type=int, default=5, help="trials per subject and mode")
-    b.add_argument("--trial-duration", type=float, default=DURATION, help="seconds (600)")
+    b.add_argument("--trials", type=int, default=5, help="trials per subject and mode, >= 1")
+    b.add_argument("--trial-duration", type=float, default=DURATION, help="trial length (s), > 0")
     b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
-    b.add_argument("--tau", type=float, default=0.1, help="bot delay (s)")
+    b.add_argument("--tau", type=float, default=0.1, help="bot delay (s), >= dt = 1 ms, whole ms")
     b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
-    b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws")
+    b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws, >= 0")
     b.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
     b.set_defaults(func=cmd_bots)
 
@@ -79,8 +91,9 @@ def cmd_serve(a: argparse.Namespace) -> int:
         level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s",
         handlers=[logging.StreamHandler(sys.stderr), logging.FileHandler(out / "server.log")],
     )  # fmt: skip
+    hosts = tuple(getattr(a, "allow_host", ()))
     config = ServerConfig(out_dir=out, engine=a.engine, duration=a.trial_duration,
-                          countdown=a.countdown)  # fmt: skip
+                          countdown=a.countdown, allowed_hosts=hosts)  # fmt: skip
 
     async def main() -> None:
         try:
@@ -111,7 +124,7 @@ def _labels(text: str) -> list[str]:
     from .protocol import LABEL
 
     labels = [x.strip() for x in text.split(",")]
-    if len(labels) != 2 or not all(LABEL.match(x) for x in labels) or labels[0] == labels[1]:
+    if len(labels) != 2 or not all(LABEL.fullmatch(x) for x in labels) or labels[0] == labels[1]:
         raise ParameterError(f"--subjects must be two different labels like A,B; got {text!r}")
     return labels
 
@@ -152,8 +165,9 @@ def cmd_analyze(a: argparse.Namespace) -> int:
         raise ParameterError(f"DIR must be a directory of recordings, got {a.dir!r}")
     if not find_trials(d):
         raise ParameterError(f"DIR {a.dir!r} holds no recordings (*.jsonl / *.npz)")
-    out = Path(a.out) if a.out else d / "analysis"
-    paths = write_report(d, out, figures=not a.no_figures)
+    out = Path(a.out) if getattr(a, "out", None) else d / "analysis"
+    paths = write_report(d, out, figures=not a.no_figures,
+                         include_incomplete=a.include_incomplete)  # fmt: skip
     for p in paths:
         print(p)
     return 0

@@ -10,18 +10,28 @@ logs without touching the trial.  Messages from the page::
                   "nu": float, "seed": int}, ...]}   # 1 seat single, 2 coupled
     {"type": "join", "code": str, "label": str}
     {"type": "ready"}
-    {"type": "mouse", "x": float}                    # canvas pixel, 1..1200 on screen
+    {"type": "join", "code": str, "label": str, "secret": str}  # a seat's reconnect
+    {"type": "ready"}
+    {"type": "mouse", "x": float, "t": float}        # canvas pixel, 1..1200 on screen;
+                                                     # t: the page's event time (ms)
+    {"type": "drawn", "k": [int, ...], "t": [float, ...]}  # frames drawn, page time (ms)
+    {"type": "client", "user_agent": str, "screen": [w, h], "canvas": [w, h],
+     "device_pixel_ratio": float, "zoom": float, "colors": [str, ...]}
     {"type": "abort"}
 
-Mouse messages are also rate limited per connection (:class:`RateLimiter`):
-the page sends at most 100 per second; a burst above :data:`MOUSE_RATE` per
-second is dropped.
+Labels and codes must match their pattern as a whole (``re.fullmatch``: a
+trailing newline is refused).  Numbers are checked by type and range before
+any conversion, so no value (a 400-digit integer, NaN, 1e999) raises anything
+but :class:`BadMessage`.
+
+Every message type is rate limited per connection (:class:`RateLimiter`,
+:data:`RATES`): the page sends at most 100 mouse messages per second and a
+few others; messages above the limit are dropped and counted.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import re
 from typing import Any
 
@@ -33,13 +43,29 @@ MAX_MESSAGE_BYTES = 2048
 #: mouse messages per second allowed on one connection (the page sends <= 100)
 MOUSE_RATE = 200.0
 MOUSE_BURST = 50.0
+#: (messages per second, burst) allowed on one connection, by message type
+RATES = {
+    "mouse": (MOUSE_RATE, MOUSE_BURST),
+    "drawn": (10.0, 10.0),
+    "client": (1.0, 3.0),
+    "create": (2.0, 5.0),
+    "join": (2.0, 5.0),
+    "ready": (2.0, 5.0),
+    "abort": (2.0, 5.0),
+}
+#: client-side timestamps (ms since the page loaded) and sizes (CSS px)
+CLIENT_TIME_RANGE = (0.0, 1e10)
+SIZE_RANGE = (0.0, 100_000.0)
+MAX_DRAWN = 60
+COLOR = re.compile(r"#[0-9a-fA-F]{6}")
 #: accepted mouse pixels (the canvas is 1..1200; a captured pointer may leave it)
 PIXEL_RANGE = (-10_000.0, 10_000.0)
-LABEL = re.compile(r"^[A-Za-z0-9_.-]{1,32}$")
-CODE = re.compile(r"^[A-Za-z0-9_-]{8,64}$")
+#: used with ``fullmatch`` only (``$`` would let a trailing newline through)
+LABEL = re.compile(r"[A-Za-z0-9_.-]{1,32}")
+CODE = re.compile(r"[A-Za-z0-9_-]{8,64}")
 TRIAL_RANGE = (1, 100_000)
 BOT_RANGES = {"beta": (0.0, 2000.0), "tau": (0.001, 1.0), "nu": (0.0, 5.0)}
-TYPES = ("create", "join", "ready", "mouse", "abort")
+TYPES = ("create", "join", "ready", "mouse", "abort", "drawn", "client")
 
 
 class BadMessage(ValueError):
@@ -47,23 +73,26 @@ class BadMessage(ValueError):
 
 
 def _number(msg: dict, key: str, lo: float, hi: float) -> float:
-    v = msg.get(key)
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise BadMessage(f"{key} must be a finite number")
-    if not lo <= v <= hi:
-        raise BadMessage(f"{key} must be in [{lo}, {hi}], got {v}")
+    return _value(msg.get(key), key, lo, hi)
+
+
+def _value(v: Any, key: str, lo: float, hi: float) -> float:
+    # int/float comparisons are exact in Python and never raise (no float(v) before the
+    # range check: a huge int would raise OverflowError); NaN fails the range check
+    if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= v <= hi:
+        raise BadMessage(f"{key} must be a number in [{lo:g}, {hi:g}]")
     return float(v)
 
 
 def _integer(msg: dict, key: str, lo: int, hi: int) -> int:
     v = msg.get(key)
     if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        raise BadMessage(f"{key} must be an integer in [{lo}, {hi}]")
+        raise BadMessage(f"{key} must be a whole number in [{lo}, {hi}]")
     return v
 
 
 def _label(v: Any, what: str = "label") -> str:
-    if not isinstance(v, str) or not LABEL.match(v):
+    if not isinstance(v, str) or not LABEL.fullmatch(v):
         raise BadMessage(f"{what} must be 1-32 characters from A-Z a-z 0-9 _ . -")
     return v
 
@@ -91,20 +120,32 @@ def parse(text: str | bytes) -> dict:
         raise BadMessage(f"message longer than {MAX_MESSAGE_BYTES} bytes")
     try:
         msg = json.loads(text)
-    except (json.JSONDecodeError, RecursionError):
+    except (ValueError, RecursionError):  # JSONDecodeError, too many digits
         raise BadMessage("not JSON") from None
     if not isinstance(msg, dict) or msg.get("type") not in TYPES:
         raise BadMessage(f"type must be one of {', '.join(TYPES)}")
     kind = msg["type"]
     if kind == "mouse":
-        return {"type": "mouse", "x": _number(msg, "x", *PIXEL_RANGE)}
+        t = msg.get("t")
+        return {"type": "mouse", "x": _number(msg, "x", *PIXEL_RANGE),
+                "t": None if t is None else _value(t, "t", *CLIENT_TIME_RANGE)}  # fmt: skip
     if kind in ("ready", "abort"):
         return {"type": kind}
+    if kind == "drawn":
+        return _drawn(msg)
+    if kind == "client":
+        return _client(msg)
     if kind == "join":
         code = msg.get("code")
-        if not isinstance(code, str) or not CODE.match(code):
+        if not isinstance(code, str) or not CODE.fullmatch(code):
             raise BadMessage("code must be a session code")
-        return {"type": "join", "code": code, "label": _label(msg.get("label"))}
+        out = {"type": "join", "code": code, "label": _label(msg.get("label"))}
+        secret = msg.get("secret")
+        if secret is not None:
+            if not isinstance(secret, str) or not CODE.fullmatch(secret):
+                raise BadMessage("secret must be a seat secret")
+            out["secret"] = secret
+        return out
     # create
     mode = msg.get("mode")
     if mode not in MODES:
@@ -121,6 +162,38 @@ def parse(text: str | bytes) -> dict:
         raise BadMessage("the two subjects need different labels")
     return {"type": "create", "token": token, "mode": mode,
             "trial": _integer(msg, "trial", *TRIAL_RANGE), "seats": seats}  # fmt: skip
+
+
+def _drawn(msg: dict) -> dict:
+    ks, ts = msg.get("k"), msg.get("t")
+    if not (isinstance(ks, list) and isinstance(ts, list) and len(ks) == len(ts) <= MAX_DRAWN):
+        raise BadMessage(f"drawn needs lists k and t of equal length <= {MAX_DRAWN}")
+    return {"type": "drawn", "k": [_integer({"k": k}, "k", 0, 10**9) for k in ks],
+            "t": [_value(t, "t", *CLIENT_TIME_RANGE) for t in ts]}  # fmt: skip
+
+
+def _text(v: Any, key: str, n: int) -> str:
+    if not isinstance(v, str) or len(v) > n or not v.isprintable():
+        raise BadMessage(f"{key} must be printable text of at most {n} characters")
+    return v
+
+
+def _client(msg: dict) -> dict:
+    out: dict[str, Any] = {"type": "client", "user_agent": _text(msg.get("user_agent"),
+                                                                 "user_agent", 512)}  # fmt: skip
+    for key in ("screen", "canvas", "window"):
+        v = msg.get(key)
+        if not isinstance(v, list) or len(v) != 2:
+            raise BadMessage(f"{key} must be [width, height] in CSS pixels")
+        out[key] = [_value(x, key, *SIZE_RANGE) for x in v]
+    out["device_pixel_ratio"] = _number(msg, "device_pixel_ratio", 0.01, 100.0)
+    out["zoom"] = _number(msg, "zoom", 0.01, 100.0)
+    colors = msg.get("colors")
+    if not (isinstance(colors, list) and 1 <= len(colors) <= 2 and
+            all(isinstance(c, str) and COLOR.fullmatch(c) for c in colors)):  # fmt: skip
+        raise BadMessage("colors must be one or two #rrggbb colours")
+    out["colors"] = colors
+    return out
 
 
 class RateLimiter:

@@ -14,6 +14,14 @@ normally, by time, out of range, abort or disconnect) the end record.
 (raw pixels), ``frame_jitter`` and ``wall_time`` (s), with the header and
 the end record as attributes.  :func:`load_trial` reads either file, so an
 unfinalised (killed) trial is still analysable.
+
+The client side: the header's ``client`` holds, per seat, what its page
+reported (user agent, screen, window and canvas size in CSS px, device pixel
+ratio, zoom, the seat colours); event lines ``{"mouse": [seat, arrival, page
+time, x]}`` (arrival: s since frame 0 on the server's clock; page time: s on
+the page's clock; x: pixel) and ``{"drawn": [seat, k, page time, arrival]}``
+(the page drew frame k) are appended as they arrive and loaded into the
+attribute ``client_events`` (column lists; see :data:`EVENT_COLUMNS`).
 """
 
 from __future__ import annotations
@@ -35,6 +43,9 @@ FORMAT = "cipval-experiment-1"
 #: fsync at least this often (s)
 FSYNC_INTERVAL = 1.0
 FIELDS = ("tip_position", "tip_velocity", "base_position", "base_velocity")
+#: columns of the event lines (times in s; seat None: a spectator's page)
+EVENT_COLUMNS = {"mouse": ("seat", "arrival", "page_time", "x"),
+                 "drawn": ("seat", "k", "page_time", "arrival")}  # fmt: skip
 
 
 def _json(obj: Any) -> str:
@@ -80,6 +91,10 @@ class Recorder:
         if time.monotonic() - self._last_sync >= FSYNC_INTERVAL:
             self._sync()
 
+    def event(self, kind: str, row: list) -> None:
+        """Append one client event line (:data:`EVENT_COLUMNS`); flushed with the next sample."""
+        self._f.write(_json({kind: row}) + "\n")
+
     def finalize(self, end: dict) -> Path:
         """Write the end record, close the log and write ``<stem>.npz``; returns its path."""
         if not self._f.closed:
@@ -115,6 +130,9 @@ def load_jsonl(path: Path) -> Trajectory:
     header: dict | None = None
     end: dict | None = None
     rows: list[dict] = []
+    events: dict[str, dict[str, list]] = {
+        kind: {c: [] for c in cols} for kind, cols in EVENT_COLUMNS.items()
+    }
     with open(path, encoding="utf-8") as f:
         for line in f:
             try:
@@ -125,6 +143,10 @@ def load_jsonl(path: Path) -> Trajectory:
                 header = obj["header"]
             elif "end" in obj:
                 end = obj["end"]
+            elif obj.keys() & events.keys():
+                ((kind, row),) = obj.items()
+                for c, v in zip(EVENT_COLUMNS[kind], row, strict=True):
+                    events[kind][c].append(v)
             else:
                 rows.append(obj)
     if header is None:
@@ -151,6 +173,7 @@ def load_jsonl(path: Path) -> Trajectory:
         "first_frame": int(frames[0]) if len(frames) else 0,
         "missing_frames": int(np.count_nonzero(np.diff(frames) != 1)) if len(frames) else 0,
         "source": str(path),
+        "client_events": events,
     }
     return Trajectory(time=time_, data=data, attrs=attrs)
 

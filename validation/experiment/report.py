@@ -3,7 +3,12 @@
 Markdown and a self-contained HTML page (the suite's
 :func:`validation.report.html_report`), plus ``results.json``.  Where the
 recordings name subjects A and B, the paper's numbers for pair (A, B) stand
-beside ours.
+beside ours, in the same unit only: tau_hat in s, RMS beside our RMS in
+pixels (the paper's RMS, 2.0 .. 6.1, has the size of pixels; its unit is not
+stated); our RMS in model units has a table of its own.  Every recording is
+shown; duplicates of (mode, subject, trial index) are listed, and trials cut
+short from outside (:data:`.analysis.INCOMPLETE`) are marked and left out of
+the averages unless ``include_incomplete``.
 """
 
 from __future__ import annotations
@@ -19,11 +24,15 @@ from validation import metrics
 from validation.report import html_report, jsonable
 
 from .analysis import (
+    INCOMPLETE,
     PAPER_AB,
     PAPER_AB_AVERAGE,
+    PAPER_QUANTITY,
+    UNITS,
     StickResult,
     analyse_directory,
     condition_ellipses,
+    duplicates,
     mean_stcc,
     table,
     trial_tau_hat,
@@ -34,23 +43,40 @@ def _f(v: float, digits: int = 3) -> str:
     return "–" if v is None or not np.isfinite(v) else f"{v:.{digits}g}"
 
 
+def _cell(row: dict, k: int, digits: int) -> str:
+    """The values of trial index ``k`` (several for duplicates, " / " between them); one
+    left out of the average is followed by its end reason in brackets."""
+    if k not in row["trials"]:
+        return ""
+    cells = zip(row["trials"][k], row["ends"][k], row["used"][k], strict=True)
+    return " / ".join(_f(v, digits) + ("" if used else f" [{end}]") for v, end, used in cells)
+
+
 def markdown_table(rows: dict, title: str, quantity: str, digits: int) -> list[str]:
-    """One of the paper's tables: subjects by trial index, with the average."""
+    """One of the paper's tables: subjects by trial index, with the average, all in the
+    unit of ``quantity`` (:data:`.analysis.UNITS`); the paper's average stands beside ours
+    only where it is in the same unit (:data:`.analysis.PAPER_QUANTITY`)."""
+    unit = UNITS[quantity]
+    paper_q = PAPER_QUANTITY.get(quantity)
     idx = sorted({k for r in rows.values() for k in r["trials"]})
-    head = "| subject | " + " | ".join(str(k) for k in idx) + " | average | sd | paper (A,B) avg |"
-    lines = [f"### {title}", "", head, "|" + "---|" * (len(idx) + 4)]
+    cols = [*map(str, idx), f"average ({unit})", f"sd ({unit})", "n used"]
+    if paper_q:
+        cols.append(f"paper (A,B) average ({'s' if quantity == 'tau_hat' else 'unit not stated'})")
+    lines = [f"### {title}", "", "| subject | " + " | ".join(cols) + " |",
+             "|" + "---|" * (len(cols) + 1)]  # fmt: skip
     for mode in MODEL_NAMES:
         keys = [k for k in rows if k[0] == mode]
         if not keys:
             continue
-        lines.append(f"| **{mode}:** |" + " |" * (len(idx) + 3))
+        lines.append(f"| **{mode}:** |" + " |" * len(cols))
         for key in keys:
             r = rows[key]
-            vals = " | ".join(_f(r["trials"].get(k, np.nan), digits) for k in idx)
-            paper = PAPER_AB_AVERAGE.get(quantity, {}).get(key)
-            shown = _f(paper, digits + 1) if paper else ""
-            avg = _f(r["average"], digits + 1)
-            lines.append(f"| {key[1]} | {vals} | {avg} | {_f(r['std'], 2)} | {shown} |")
+            vals = [_cell(r, k, digits) for k in idx]
+            vals += [_f(r["average"], digits + 1), _f(r["std"], 2), str(r["n"])]
+            if paper_q:
+                paper = PAPER_AB_AVERAGE[paper_q].get(key)
+                vals.append(_f(paper, digits + 1) if paper else "")
+            lines.append(f"| {key[1]} | " + " | ".join(vals) + " |")
     return [*lines, ""]
 
 
@@ -170,7 +196,7 @@ def fig_rmstau(results: list[StickResult], ellipses: dict, path: Path) -> Path:
         if el and np.isfinite(el["sd_tau_hat"]) and np.isfinite(el["sd_rms"]):
             ax.add_patch(Ellipse((el["mean_tau_hat"], el["mean_rms"]), 2 * el["sd_tau_hat"],
                                  2 * el["sd_rms"], fill=False, ls=ls, lw=1.5))  # fmt: skip
-    ax.set(xlabel="tau_hat (s)", ylabel="RMS of the balancing error (units)",
+    ax.set(xlabel="tau_hat (s)", ylabel="RMS of the balancing error (model units)",
            title="correlation time vs RMS")  # fmt: skip
     ax.legend()
     fig.tight_layout()
@@ -180,39 +206,67 @@ def fig_rmstau(results: list[StickResult], ellipses: dict, path: Path) -> Path:
 
 
 # ----------------------------------------------------------------- report
-def write_report(directory: Path, out: Path, figures: bool = True) -> list[Path]:
-    """Analyse every recording in ``directory``; write report.md/html and results.json."""
+def write_report(
+    directory: Path, out: Path, figures: bool = True, include_incomplete: bool = False
+) -> list[Path]:
+    """Analyse every recording in ``directory``; write report.md/html and results.json.
+
+    Trials cut short from outside (:data:`.analysis.INCOMPLETE`) are shown but left out
+    of the averages, the ellipses and Fig. rmstau unless ``include_incomplete``.
+    """
     out.mkdir(parents=True, exist_ok=True)
     results, trajs = analyse_directory(directory)
-    ell = condition_ellipses(results)
-    stcc_rows = table(results, "tau_hat")
-    rms_rows = table(results, "rms")
-    rmspx_rows = table(results, "rms_px")
+    used = [r for r in results if include_incomplete or r.complete]
+    ell = condition_ellipses(results, include_incomplete)
+    rows = {q: table(results, q, include_incomplete) for q in ("tau_hat", "rms", "rms_px")}
+    dups = duplicates(results)
     subjects = {r.subject for r in results}
+    n_incomplete = sum(not r.complete for r in results)
     md = ["# The paper's experiment: analysis", "",
-          f"Recordings: `{directory}`; {len(trajs)} trial(s), {len(results)} subject-trials.",
+          f"Recordings: `{directory}`; {len(trajs)} trial(s), {len(results)} subject-trials, "
+          f"{n_incomplete} of them cut short from outside ({', '.join(INCOMPLETE)}).",
           "tau_hat: first dominant peak of the STCC R(x_T', x_M'; tau) averaged over 5 s "
-          "windows (every 1 s, lags to 0.5 s); RMS of the balancing error.", "",
+          "windows (every 1 s, lags to 0.5 s), in s; RMS of the balancing error, in model "
+          "units (the screen spans -3 .. 3) and in pixels (1 unit = 1199/6 px).", "",
+          ("Trials cut short from outside are **included** in the averages (as asked)."
+           if include_incomplete else
+           "Trials cut short from outside are shown with their end reason in brackets and "
+           "**left out** of the averages, the ellipses and Fig. rmstau "
+           "(`--include-incomplete` includes them)."), "",
           "## Trials", "",
-          "| file | mode | subject | trial | ended | duration (s) | tau_hat (s) | RMS | RMS (px) |",
-          "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+          "| file | mode | subject | trial | ended | in averages | duration (s) | tau_hat (s) "
+          "| RMS (model units) | RMS (px) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in results:
         md.append(f"| {r.file} | {r.mode} | {r.subject} | {r.trial_index} | {r.end} | "
+                  f"{'yes' if include_incomplete or r.complete else 'no'} | "
                   f"{r.duration:.2f} | {_f(r.tau_hat, 2)} | {_f(r.rms, 3)} | "
                   f"{_f(r.rms_px, 3)} |")  # fmt: skip
-    md += ["", "## Table STCC: correlation times tau_hat (s)", ""]
-    md += markdown_table(stcc_rows, "ours", "tau_hat", 2)
-    md += ["## Table RMS: RMS of the balancing errors", ""]
-    md += markdown_table(rms_rows, "ours, model units", "rms", 3)
-    md += markdown_table(rmspx_rows, "ours, pixels (1 unit = 1199/6 px)", "rms", 3)
-    md += ["The paper does not state the unit of its RMS values.", ""]
+    md.append("")
+    if dups:
+        md += ["## Duplicates", "",
+               f"{len(dups)} (mode, subject, trial index) recorded more than once; every "
+               "recording is kept and shown (values separated by ' / ' in the tables).", "",
+               "| mode | subject | trial | files |", "|---|---|---|---|"]  # fmt: skip
+        md += [f"| {d['mode']} | {d['subject']} | {d['trial_index']} | "
+               f"{', '.join(d['files'])} |" for d in dups]  # fmt: skip
+        md.append("")
+    md += ["## Table STCC: correlation times tau_hat (s)", ""]
+    md += markdown_table(rows["tau_hat"], "ours (s)", "tau_hat", 2)
+    md += ["## Table RMS: RMS of the balancing errors", "",
+           "The paper does not state the unit of its RMS values (2.0 .. 6.1); they have the "
+           "size of screen pixels, so they stand beside our RMS in pixels only.", ""]  # fmt: skip
+    md += markdown_table(rows["rms_px"], "ours, pixels (1 unit = 1199/6 px)", "rms_px", 3)
+    md += markdown_table(rows["rms"], "ours, model units (no paper values in this unit)",
+                         "rms", 3)  # fmt: skip
     if {"A", "B"} <= subjects:
         md += ["## The paper's numbers for pair (A, B)", "", "Table STCC (s):", ""]
         md += paper_rows("tau_hat", 2)
-        md += ["Table RMS (unit not stated):", ""]
+        md += ["Table RMS (unit not stated; the size of pixels):", ""]
         md += paper_rows("rms", 2)
     md += ["## Fig. rmstau: means and standard deviations per condition", "",
-           "| condition | n | mean tau_hat | sd tau_hat | mean RMS | sd RMS |",
+           "| condition | n | mean tau_hat (s) | sd tau_hat (s) | mean RMS (model units) "
+           "| sd RMS (model units) |",
            "|---|---|---|---|---|---|"]  # fmt: skip
     for mode, e in ell.items():
         md.append(f"| {mode} | {e['n']} | {_f(e['mean_tau_hat'])} | {_f(e['sd_tau_hat'], 2)} |"
@@ -225,15 +279,17 @@ def write_report(directory: Path, out: Path, figures: bool = True) -> list[Path]
             if picks:
                 names.append(fig_move(picks, mode, out / f"move_{suffix}.png").name)
                 names.append(fig_stcc(picks, mode, out / f"stcc_{suffix}.png").name)
-        if results:
-            names.append(fig_rmstau(results, ell, out / "rmstau.png").name)
+        if used:
+            names.append(fig_rmstau(used, ell, out / "rmstau.png").name)
         md += ["## Figures", ""] + [f"![{n}]({n})" for n in names]
     text = "\n".join(md) + "\n"
     (out / "report.md").write_text(text)
     (out / "report.html").write_text(html_report(text, out))
-    res = {"trials": [r.as_dict() for r in results], "ellipses": ell,
-           "table_stcc": {f"{k[0]} {k[1]}": v for k, v in stcc_rows.items()},
-           "table_rms": {f"{k[0]} {k[1]}": v for k, v in rms_rows.items()},
+    res = {"trials": [r.as_dict() for r in results], "ellipses": ell, "duplicates": dups,
+           "include_incomplete": include_incomplete, "units": UNITS,
+           "table_stcc": {f"{k[0]} {k[1]}": v for k, v in rows["tau_hat"].items()},
+           "table_rms": {f"{k[0]} {k[1]}": v for k, v in rows["rms"].items()},
+           "table_rms_px": {f"{k[0]} {k[1]}": v for k, v in rows["rms_px"].items()},
            "figures": names}  # fmt: skip
     (out / "results.json").write_text(json.dumps(jsonable(res), indent=1))
     return [out / "report.md", out / "report.html", out / "results.json"] + [out / n for n in names]

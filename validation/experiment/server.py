@@ -6,13 +6,28 @@
   unguessable ``secrets.token_urlsafe(16)``.  Without them nobody can join,
   watch or send mouse data.  The server listens on 127.0.0.1 unless told
   otherwise.
-* Every message is validated (:mod:`.protocol`); bad ones are dropped and
-  logged, counted in the recording's end record, and never touch the trial.
+* ``/ws`` is refused (403) when its ``Host`` is not an IP address,
+  ``localhost`` or a name given in :attr:`ServerConfig.allowed_hosts` (no DNS
+  rebinding), or when a browser's ``Origin`` is not this server (no
+  cross-site WebSocket).
+* Every message is validated (:mod:`.protocol`) and rate limited per
+  connection and type (:data:`.protocol.RATES`); bad ones are dropped,
+  answered with an error the page shows, logged, counted by type in the
+  recording's end record, and never touch the trial.
+* A seat is bound to the socket that took it (:mod:`.session`); a reconnect
+  needs the seat's secret.
+* Nothing secret is logged: the access log shows paths without their query
+  (the token, the join code), and sessions are named by a short public id.
+* An HTTP connection that goes :attr:`ServerConfig.idle_timeout` seconds
+  without a complete request (silent after opening, a header trickling in,
+  idle after a response) is closed (aiohttp's default would wait an hour); an
+  open WebSocket is pinged every 10 s and closed when it stops answering.
 """
 
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import logging
 import secrets
 import socket
@@ -20,11 +35,15 @@ import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from aiohttp import WSMsgType, web
+from aiohttp.abc import AbstractAccessLogger
 
-from .protocol import BadMessage, RateLimiter, parse
-from .session import Seat, Session
+from cipcore import ParameterError
+
+from .protocol import RATES, BadMessage, RateLimiter, parse
+from .session import Seat, Session, make_bots
 from .task import TaskSettings
 
 log = logging.getLogger("cipval.experiment")
@@ -39,6 +58,25 @@ class ServerConfig:
     duration: float = 600.0
     countdown: int = 3
     token: str = field(default_factory=lambda: secrets.token_urlsafe(16))
+    #: host names (besides IP addresses and localhost) under which /ws may be reached
+    allowed_hosts: tuple[str, ...] = ()
+    #: seconds an HTTP connection may go without a complete request: from its opening, or
+    #: since its last response, also while a header trickles in (aiohttp's keep-alive timer)
+    idle_timeout: float = 15.0
+
+
+#: static files and their types (every file here exists under ``static/``)
+STATIC = {"app.js": "text/javascript", "style.css": "text/css"}
+#: answers to invalid messages per connection (per second, burst)
+ERROR_REPLIES = (2.0, 5.0)
+
+
+class _AccessLog(AbstractAccessLogger):
+    """Access log without query strings or headers (they carry the token and codes)."""
+
+    def log(self, request: web.BaseRequest, response: web.StreamResponse, time: float) -> None:
+        self.logger.info("%s %s %s %d %.1f ms", request.remote, request.method, request.path,
+                         response.status, time * 1e3)  # fmt: skip
 
 
 def _static(name: str) -> bytes:
@@ -66,10 +104,30 @@ class ExperimentServer:
 
     async def static(self, request: web.Request) -> web.Response:
         name = request.match_info["name"]
-        types = {"app.js": "text/javascript", "style.css": "text/css"}
-        if name not in types:
+        if name not in STATIC:
             raise web.HTTPNotFound()
-        return web.Response(body=_static(name), content_type=types[name])
+        return web.Response(body=_static(name), content_type=STATIC[name])
+
+    def _host_allowed(self, request: web.Request) -> str:
+        """Empty when ``request`` may open /ws, else why not (module docstring)."""
+        try:
+            return self._check_host(request)
+        except ValueError:  # a Host or Origin that is not even a URL
+            return "malformed Host or Origin"
+
+    def _check_host(self, request: web.Request) -> str:
+        name = urlsplit("//" + request.host).hostname or ""
+        try:
+            ipaddress.ip_address(name)
+        except ValueError:
+            if name != "localhost" and name not in self.config.allowed_hosts:
+                return f"Host {name!r} is not an IP address, localhost or an allowed host"
+        origin = request.headers.get("Origin")
+        if origin is not None:
+            o = urlsplit(origin)
+            if o.scheme not in ("http", "https") or o.netloc.lower() != request.host.lower():
+                return f"Origin {origin!r} is not this server"
+        return ""
 
     async def shutdown(self, app: web.Application) -> None:
         for s in list(self.sessions.values()):
@@ -77,83 +135,108 @@ class ExperimentServer:
             if s._task is not None:
                 await asyncio.gather(s._task, return_exceptions=True)
 
-    def _drop(self, session: Session | None, why: str, peer: str) -> None:
+    def _drop(self, session: Session | None, kind: str, why: str, peer: str) -> None:
+        """Count (by message type; ``invalid`` when unparsable) and log a dropped message."""
         self.dropped += 1
         if session is not None:
-            session.dropped += 1
+            session.count_drop(kind)
         if self.dropped <= 100 or self.dropped % 1000 == 0:
-            log.warning("dropped message from %s: %s (%d dropped so far)", peer, why, self.dropped)
+            log.warning("dropped %s message from %s: %s (%d dropped so far)", kind, peer, why,
+                        self.dropped)  # fmt: skip
 
     async def websocket(self, request: web.Request) -> web.WebSocketResponse:
+        peer = request.remote or "?"
+        refused = self._host_allowed(request)
+        if refused:
+            log.warning("refused /ws from %s: %s", peer, refused)
+            raise web.HTTPForbidden(text=refused)
         # messages above 2 KiB are dropped by the protocol; above 64 KiB aiohttp closes the socket
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=65536)
         await ws.prepare(request)
-        peer = request.remote or "?"
         session: Session | None = None
         seat: int | None = None
-        limiter = RateLimiter()
+        limits = {kind: RateLimiter(*rate) for kind, rate in RATES.items()}
+        replies = RateLimiter(*ERROR_REPLIES)
+
+        async def refuse(kind: str, why: str) -> None:
+            self._drop(session, kind, why, peer)
+            if kind != "mouse" and replies.allow(time.monotonic()):
+                await ws.send_json({"type": "error", "error": why})
+
         try:
             async for raw in ws:
                 if raw.type != WSMsgType.TEXT:
-                    self._drop(session, "not a text message", peer)
+                    await refuse("invalid", "not a text message")
                     continue
                 try:
                     msg = parse(raw.data)
                 except BadMessage as exc:
-                    self._drop(session, str(exc), peer)
+                    await refuse("invalid", str(exc))
                     continue
                 kind = msg["type"]
-                if kind == "mouse":
+                if not limits[kind].allow(time.monotonic()):
+                    self._drop(session, kind, "above the rate limit", peer)
+                elif kind == "mouse":
                     if session is None or seat is None:
-                        self._drop(session, "mouse data without a seat", peer)
-                    elif not limiter.allow(time.monotonic()):
-                        self._drop(session, "mouse messages above the rate limit", peer)
+                        self._drop(session, kind, "mouse data without a seat", peer)
                     else:
-                        session.mouse(seat, msg["x"])
+                        session.mouse(seat, msg["x"], msg["t"])
+                elif kind == "drawn" and session is not None:
+                    session.drawn(seat, msg["k"], msg["t"])
+                elif kind == "client" and session is not None and seat is not None:
+                    session.seats[seat].client = {k: v for k, v in msg.items() if k != "type"}
                 elif kind == "create" and session is None:
                     if not secrets.compare_digest(msg["token"], self.config.token):
-                        self._drop(None, "create with a wrong access token", peer)
-                        await ws.send_json({"type": "error", "error": "wrong access token"})
+                        await refuse(kind, "wrong access token")
                         continue
-                    session, seat = self._create(msg, ws)
-                    await ws.send_json({**session.describe(), "type": "created", "seat": seat})
+                    try:
+                        session, seat, secret = self._create(msg, ws)
+                    except ParameterError as exc:
+                        await refuse(kind, str(exc))
+                        continue
+                    await ws.send_json({**session.describe(), "type": "created", "seat": seat,
+                                        "secret": secret})  # fmt: skip
                     await session.broadcast(session.describe())
                 elif kind == "join" and session is None:
-                    session, seat, error = self._join(msg, ws)
+                    found, at, error = self._join(msg, ws)
                     if error:
-                        self._drop(None, error, peer)
-                        await ws.send_json({"type": "error", "error": error})
-                        session = None
+                        await refuse(kind, error)
                         continue
-                    await ws.send_json({"type": "joined", "seat": seat})
+                    session, seat = found, at
+                    await ws.send_json({**session.describe(), "type": "joined", "seat": seat,
+                                        "secret": session.seats[seat].secret})  # fmt: skip
                     await session.broadcast(session.describe())
                 elif kind == "ready" and session is not None:
                     await session.set_ready(seat)
-                elif kind == "abort" and session is not None:
+                elif kind == "abort" and session is not None and session.phase != "ended":
                     label = session.seats[seat].label if seat is not None else "spectator"
                     log.info("session %s: abort by %s", session.id, label)
                     session.end("abort", label)
+                elif kind not in ("drawn", "client"):
+                    await refuse(kind, f"{kind} is not possible now")
                 else:
-                    self._drop(session, f"{kind} not allowed now", peer)
+                    self._drop(session, kind, f"{kind} not possible now", peer)
         finally:
             if session is not None:
                 self._leave(session, seat, ws)
         return ws
 
-    def _create(self, msg: dict, ws) -> tuple[Session, int | None]:
+    def _create(self, msg: dict, ws) -> tuple[Session, int | None, str | None]:
         c = self.config
         settings = TaskSettings(mode=msg["mode"], duration=c.duration)
         seats = [Seat(kind=s["kind"], label=s["label"], spec=s) for s in msg["seats"]]
+        make_bots(settings, seats)  # bad bot settings: an error now, not at the countdown
         session = Session(settings, c.engine, msg["trial"], seats, c.out_dir, c.countdown)
         seat = session.free_human_seat()
+        secret = None
         if seat is None:
             session.spectators.append(ws)
         else:
-            seats[seat].ws = ws
+            secret = seats[seat].take(ws)
         self.sessions[session.code] = session
         log.info("session %s created: %s, trial %d, seats %s", session.id, settings.mode,
                  msg["trial"], [(s.kind, s.label) for s in seats])  # fmt: skip
-        return session, seat
+        return session, seat, secret
 
     def _join(self, msg: dict, ws) -> tuple[Session | None, int | None, str]:
         session = None
@@ -162,13 +245,22 @@ class ExperimentServer:
                 session = s
         if session is None or session.phase != "waiting":
             return None, None, "no open session with this code"
+        if "secret" in msg:  # taking one's own seat back after a reload
+            for i, s in enumerate(session.seats):
+                if s.secret is not None and secrets.compare_digest(s.secret, msg["secret"]):
+                    if s.ws is not None:
+                        return None, None, "this seat is in use by another page"
+                    s.ws = ws
+                    log.info("session %s: %s took seat %d back", session.id, s.label, i + 1)
+                    return session, i, ""
+            return None, None, "wrong seat secret"
         seat = session.free_human_seat()
         if seat is None:
             return None, None, "the session is full"
         others = [s.label for i, s in enumerate(session.seats) if i != seat]
         if msg["label"] in others:
             return None, None, "the two subjects need different labels"
-        session.seats[seat].ws = ws
+        session.seats[seat].take(ws)
         session.seats[seat].label = msg["label"]
         session.seats[seat].spec = {"kind": "human", "label": msg["label"]}
         log.info("session %s: %s joined seat %d", session.id, msg["label"], seat + 1)
@@ -199,7 +291,8 @@ async def start(
     """Start serving; returns the runner (``await runner.cleanup()`` stops it), the URL
     with the access token, and the server object."""
     server = ExperimentServer(config)
-    runner = web.AppRunner(server.app(), handle_signals=False)
+    runner = web.AppRunner(server.app(), handle_signals=False, access_log_class=_AccessLog,
+                           keepalive_timeout=config.idle_timeout)  # fmt: skip
     await runner.setup()
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

@@ -6,6 +6,16 @@ time t0 + k * frame on the server's monotonic clock (the lateness of the
 frame is recorded as its jitter), is appended to the recording, and is sent to
 every page.  An abort, a closed page or the server stopping end the trial; the
 recording is finalised in every case.
+
+A human seat is bound to the socket that took it for the whole session: when
+that socket closes the seat is not free again; only a page holding the
+seat's secret (issued when the seat was taken) may take it back, and only
+before the countdown.  Bot settings are checked when the session is created
+(:func:`make_bots`), so a bad one is an error on the page, never a hung
+countdown.  During the countdown every page gets the lines' initial screen
+positions to draw.  The client side of each seat (browser, sizes, colours)
+goes into the recording's header; every mouse message's arrival time and the
+page's report of when it drew each frame are appended as they arrive.
 """
 
 from __future__ import annotations
@@ -17,10 +27,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from cipcore import ParameterError
+
 from .bot import BotSpec, PseudoNeuralBot
 from .headless import trial_stem
 from .recording import Recorder, make_header
-from .task import INITIAL_BASES, TaskSettings, make_task
+from .task import INITIAL_BASES, INITIAL_TIP, TaskSettings, make_task
 from .trial import Trial
 
 log = logging.getLogger("cipval.experiment")
@@ -37,10 +49,35 @@ class Seat:
     ready: bool = False
     pixel: float | None = None
     bot: PseudoNeuralBot | None = None
+    secret: str | None = None  # issued when a human takes the seat; needed to take it back
+    client: dict | None = None
 
     @property
     def taken(self) -> bool:
         return self.kind == "bot" or self.ws is not None
+
+    def take(self, ws: Any) -> str:
+        """Bind the seat to ``ws``; returns the seat's secret."""
+        self.ws = ws
+        self.secret = secrets.token_urlsafe(16)
+        return self.secret
+
+
+def make_bots(settings: TaskSettings, seats: list[Seat]) -> list[PseudoNeuralBot | None]:
+    """A fresh bot for each bot seat (None for humans); raises ParameterError on bad settings
+    (e.g. a delay tau that is not a whole number of time steps dt)."""
+    out: list[PseudoNeuralBot | None] = []
+    for seat, x0 in zip(seats, INITIAL_BASES[settings.mode], strict=True):
+        if seat.kind != "bot":
+            out.append(None)
+            continue
+        sp = seat.spec
+        try:
+            spec = BotSpec(sp["beta"], sp["tau"], sp["nu"], sp["seed"])
+            out.append(PseudoNeuralBot(spec, settings.params, settings.frame, x0))
+        except (ParameterError, ValueError) as exc:
+            raise ParameterError(f"bot {seat.label}: {exc}") from None
+    return out
 
 
 @dataclass
@@ -59,15 +96,21 @@ class Session:
     spectators: list[Any] = field(default_factory=list)
     trial: Trial | None = None
     file: Path | None = None
-    dropped: int = 0
+    dropped: dict[str, int] = field(default_factory=dict)
     _task: asyncio.Task | None = None
+    _rec: Recorder | None = None
+    _t0: float = 0.0
 
     # ------------------------------------------------------------ seats
     def free_human_seat(self) -> int | None:
+        """A human seat nobody has taken yet (a seat once taken stays bound)."""
         for i, s in enumerate(self.seats):
-            if s.kind == "human" and s.ws is None:
+            if s.kind == "human" and s.secret is None:
                 return i
         return None
+
+    def count_drop(self, kind: str) -> None:
+        self.dropped[kind] = self.dropped.get(kind, 0) + 1
 
     def clients(self) -> list[Any]:
         return [s.ws for s in self.seats if s.ws is not None] + list(self.spectators)
@@ -84,7 +127,8 @@ class Session:
         return {"type": "session", "phase": self.phase, "mode": self.settings.mode,
                 "trial": self.trial_index, "code": self.code,
                 "seats": [{"kind": s.kind, "label": s.label, "taken": s.taken,
-                           "ready": s.ready or s.kind == "bot"} for s in self.seats]}  # fmt: skip
+                           "ready": s.ready or s.kind == "bot"} for s in self.seats],
+                "preview": self.preview()}  # fmt: skip
 
     async def set_ready(self, seat: int | None) -> None:
         if seat is not None:
@@ -95,8 +139,28 @@ class Session:
             self.phase = "countdown"
             self._task = asyncio.create_task(self.run())
 
-    def mouse(self, seat: int, x: float) -> None:
+    def mouse(self, seat: int, x: float, t_client: float | None = None) -> None:
+        """The seat's latest pixel; while running, its arrival is recorded: seat, arrival
+        time (s since frame 0, server clock), the page's event time (s, page clock), x."""
         self.seats[seat].pixel = x
+        if self._rec is not None and self.phase == "running":
+            now = asyncio.get_running_loop().time() - self._t0
+            t = None if t_client is None else t_client / 1000.0
+            self._rec.event("mouse", [seat, now, t, x])
+
+    def drawn(self, seat: int | None, ks: list[int], ts: list[float]) -> None:
+        """The page of ``seat`` (None: a spectator) drew frames ``ks`` at page times ``ts`` (ms)."""
+        if self._rec is not None and self.phase == "running":
+            now = asyncio.get_running_loop().time() - self._t0
+            for k, t in zip(ks, ts, strict=True):
+                self._rec.event("drawn", [seat, k, t / 1000.0, now])
+
+    def preview(self) -> dict:
+        """The lines at their initial screen positions (drawn during the countdown)."""
+        s = self.settings
+        off = s.offsets
+        return {"tips": [INITIAL_TIP + o for o in off], "bases": list(INITIAL_BASES[s.mode]),
+                "offsets": off.tolist()}  # fmt: skip
 
     def end(self, reason: str, detail: str = "") -> None:
         """End the running trial (or cancel a session that has not started)."""
@@ -111,31 +175,37 @@ class Session:
     async def run(self) -> None:
         """Countdown, then the trial at 50 Hz until an end rule fires."""
         for n in range(self.countdown, 0, -1):
-            await self.broadcast({"type": "countdown", "n": n})
+            await self.broadcast({"type": "countdown", "n": n, **self.preview()})
             await asyncio.sleep(1.0)
             if self.phase == "ended":
                 return
         s = self.settings
-        self.trial = trial = Trial(s, make_task(self.engine, s))
-        for seat, x0 in zip(self.seats, INITIAL_BASES[s.mode], strict=True):
-            if seat.kind == "bot":
-                spec = BotSpec(seat.spec["beta"], seat.spec["tau"], seat.spec["nu"],
-                               seat.spec["seed"])  # fmt: skip
-                seat.bot = PseudoNeuralBot(spec, s.params, s.frame, x0)
-                seat.pixel = seat.bot.initial_pixel()
-        labels = [seat.label for seat in self.seats]
-        header = make_header(
-            s.as_dict(), self.engine, labels, [seat.spec for seat in self.seats],
-            self.trial_index, session=self.id, substeps=s.substeps,
-        )  # fmt: skip
-        rec = Recorder(trial_stem(self.out_dir, s.mode, labels, self.trial_index), header)
+        try:
+            self.trial = trial = Trial(s, make_task(self.engine, s))
+            for seat, bot in zip(self.seats, make_bots(s, self.seats), strict=True):
+                seat.bot = bot
+                if bot is not None:
+                    seat.pixel = bot.initial_pixel()
+            labels = [seat.label for seat in self.seats]
+            header = make_header(
+                s.as_dict(), self.engine, labels, [seat.spec for seat in self.seats],
+                self.trial_index, session=self.id, substeps=s.substeps,
+            )  # fmt: skip
+            header["client"] = [seat.client for seat in self.seats]
+            rec = Recorder(trial_stem(self.out_dir, s.mode, labels, self.trial_index), header)
+        except Exception as exc:  # every page must hear why nothing starts
+            log.exception("session %s: the trial could not start", self.id)
+            self.phase = "ended"
+            await self.broadcast({"type": "error", "error": f"the trial could not start: {exc}"})
+            return
+        self._rec = rec
         self.file = rec.path
         log.info("session %s: trial started, recording %s", self.id, rec.path)
         self.phase = "running"
         await self.broadcast({"type": "start", "offsets": s.offsets.tolist(),
                               "frame": s.frame, "duration": s.duration})  # fmt: skip
         loop = asyncio.get_running_loop()
-        t0 = loop.time()
+        t0 = self._t0 = loop.time()
         try:
             while not trial.ended:
                 deadline = t0 + trial.k * s.frame
@@ -163,7 +233,8 @@ class Session:
         finally:
             end = {"reason": trial.end_reason, "detail": trial.end_detail,
                    "time": trial.end_time, "samples": rec.n_samples,
-                   "dropped_messages": self.dropped}  # fmt: skip
+                   "dropped_messages": sum(self.dropped.values()),
+                   "dropped_by_type": dict(self.dropped)}  # fmt: skip
             self.file = rec.finalize(end)
             self.phase = "ended"
             log.info("session %s: trial ended (%s %s) after %d samples: %s", self.id,
