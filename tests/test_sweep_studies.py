@@ -146,3 +146,17 @@ def test_settings_that_cannot_matter_are_refused(kw, words):
     assert "\n" not in str(e.value)
     for w in words:
         assert w in str(e.value)
+
+
+def test_sweep_export_writes_csv_with_units(compared, tmp_path, capsys):
+    import pandas as pd
+
+    from validation.cli import main
+
+    out, ds = compared
+    assert main(["sweep-export", str(out), "--csv", str(tmp_path / "s.csv")]) == 0
+    df = pd.read_csv(tmp_path / "s.csv")
+    assert len(df) == ds.sizes["model"] * ds.sizes["tau"] * ds.sizes["realization"]
+    assert "rms [log10(m)]" in df.columns and "tau [s]" in df.columns
+    assert main(["sweep-export", str(tmp_path / "none"), "--csv", str(tmp_path / "x.csv")]) == 2
+    assert "cip-validate: error: dataset" in capsys.readouterr().err
