@@ -52,7 +52,7 @@ VARIABLE_ATTRS: dict[str, tuple[str, str]] = {
     "slope_high": ("high-frequency spectral slope of the balancing error", "1"),
     "slope_low_se": ("bootstrap SE of the low-frequency slope", "1"),
     "slope_high_se": ("bootstrap SE of the high-frequency slope", "1"),
-    "beta_star": ("target gain beta* (lambda1 = target, reduced model)", "s-2"),
+    "beta_star": ("target gain beta* (reduced model)", "s-2"),
     "beta_star_ci_low": ("beta*, bootstrap 95 % interval, low end", "s-2"),
     "beta_star_ci_high": ("beta*, bootstrap 95 % interval, high end", "s-2"),
 }
@@ -90,14 +90,14 @@ def paired_attrs(name: str) -> dict[str, str]:
             if var != name:
                 continue
             if kind == "ratio_median":
-                return {"long_name": "ratio of median RMS balancing errors, compared / "
-                        "reference" + bound, "units": "1"}  # fmt: skip
+                return {"long_name": "median RMS ratio compared / reference" + bound,
+                        "units": "1"}  # fmt: skip
             if kind == "ratio_geomean":
-                return {"long_name": "ratio of geometric-mean RMS balancing errors, compared / "
-                        "reference" + bound, "units": "1"}  # fmt: skip
-            ln, u = VARIABLE_ATTRS[metric]
+                return {"long_name": "geometric-mean RMS ratio compared / reference" + bound,
+                        "units": "1"}  # fmt: skip
+            u = VARIABLE_ATTRS[metric][1]
             return {
-                "long_name": f"difference of medians, compared - reference: {ln}{bound}",
+                "long_name": f"{metric}: median compared - median reference{bound}",
                 "units": u,
             }
     return {}

@@ -187,6 +187,10 @@ def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
             ds[name] = v
     for name in ds.data_vars:
         ds[name].attrs = variable_attrs(name)
+        if study.compare and "compared" in ds[name].attrs.get("long_name", ""):
+            ln = ds[name].attrs["long_name"]
+            ref, other = study.compare
+            ds[name].attrs["long_name"] = ln.replace("compared", other).replace("reference", ref)
     for name in ds.coords:
         ds[name].attrs = coord_attrs(name)
     ds.attrs = {
