@@ -175,7 +175,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--compare",
         metavar="REF,OTHER",
-        help="two models run with the same noise per realisation, paired ratios and "
+        help="two models run with the same seed per realisation, paired ratios and "
         "differences (e.g. single,coupled; default: the study's)",
     )
     p.add_argument(

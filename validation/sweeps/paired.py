@@ -1,8 +1,13 @@
 """Paired model comparisons and heavy-tail summaries with bootstrap 95 % intervals.
 
 A ``compare = [A, B]`` study runs models A (the reference) and B at every
-grid point with the same seed, so realisation r of A and of B are driven by
-the same noise draw (common random numbers).  Per grid point it stores:
+grid point with the same seed, so realisation r of each model draws from the
+same random stream (common random numbers).  The models consume it
+differently (the single balancer one draw per step, the coupled pair two,
+interleaved), so the gain noises of a pair are not the same path and pairing
+brings little variance reduction; the pairs are still independent and
+identically distributed, so the paired bootstrap below is valid.  Per grid
+point it stores:
 
 * ``rms_ratio_median``: median RMS of B / median RMS of A (RMS in m);
 * ``rms_ratio_geomean``: geometric-mean RMS of B / of A, i.e.
@@ -12,7 +17,7 @@ the same noise draw (common random numbers).  Per grid point it stores:
 
 each with ``_ci_low`` / ``_ci_high``: a paired percentile bootstrap
 (:func:`scipy.stats.bootstrap`, ``paired=True``: realisations are resampled
-together, keeping each noise draw's pair) over the realisations that are
+together, keeping each seed's pair) over the realisations that are
 finite for both models.  Medians and geometric means are used because the
 RMS of the balancing error is heavy-tailed (it spans decades across
 realisations): a mean is carried by its largest draw.

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -105,7 +106,7 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
     ):
         ax.set_xscale("log")
     ax.set_xlabel(label(x, dict(ds[x].attrs)))
-    ax.set_ylabel(label(metric, dict(ds[metric].attrs)))
+    ax.set_ylabel(textwrap.fill(label(metric, dict(ds[metric].attrs)), 42), fontsize=9)
     n = ds.sizes.get("realization", 1)
     what = (f"median over realisations, bootstrap 95% band ({n} realisations)" if per
             else "per grid point, bootstrap 95% band")  # fmt: skip
@@ -167,7 +168,7 @@ def write_sweep_report(study: Study, out_dir: Path) -> Path:
         lines += [f"![beta_star]({png.name})", ""]
     if study.compare:
         ref, cmp_ = study.compare
-        lines += [f"## {cmp_} vs {ref} (paired: the same noise draw per realisation)", "",
+        lines += [f"## {cmp_} vs {ref} (paired by realisation: same seed and stream)", "",
                   "Ratios: compared / reference; differences: compared - reference; "
                   "percentile bootstrap 95 % intervals over paired realisations.", ""]  # fmt: skip
         paired = [v for v in ds.data_vars if ("_ratio_" in v or "_diff_" in v)

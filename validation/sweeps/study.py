@@ -265,8 +265,8 @@ def point_seed(study: Study, point: dict[str, Any]) -> int:
     """The seed of one grid point: the study seed, or one derived from it and the point.
 
     The ``model`` of a ``compare`` study is left out of the derivation: the
-    compared models see the same noise at every point (common random numbers
-    across models), so their realisations pair up.
+    compared models draw from the same random stream at every point (common
+    random numbers across models), so their realisations pair up.
     """
     if study.common_random_numbers:
         return study.seed
