@@ -67,6 +67,16 @@ def cmd_sweep(a: argparse.Namespace) -> int:
         runs=n_points * passes,
         force=a.force,
     )
+    if study.gain:  # every beta*: gains x realisations x duration per model and delay
+        g = study.gain
+        check_work(
+            "gain.duration",
+            g["realizations"],
+            g["duration"],
+            float(dt),
+            runs=n_points * g["gains"],
+            force=a.force,
+        )
     finished = []
     t = time.perf_counter()
     with interrupt_signals() as got:
