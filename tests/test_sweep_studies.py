@@ -142,6 +142,8 @@ def test_paired_interval_is_reproducible_and_pairs_realisations():
          ["stcc.lag", "allowed"]),
         ({"engine": "reduced", "grid": {"tau": [0.1]}, "compare": ["single"]},
          ["compare", "two"]),
+        ({"engine": "reduced", "grid": {"model": ["single", "coupled"]}},
+         ["model", "compare"]),
     ],
 )  # fmt: skip
 def test_settings_that_cannot_matter_are_refused(kw, words):

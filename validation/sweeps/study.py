@@ -106,6 +106,11 @@ class Study:
         if not isinstance(self.grid, dict) or not self.grid:
             raise ParameterError("grid: a study needs at least one swept parameter")
         for k in [*self.fixed, *self.grid]:
+            if k == "model":
+                raise ParameterError(
+                    'model: compare two models with compare = ["single", "coupled"] in '
+                    "[study] (or --compare single,coupled): paired, with the same seeds"
+                )
             if k not in SETTINGS:
                 raise ParameterError(f"unknown setting {k!r}; allowed: {', '.join(SETTINGS)}")
         for k, vals in self.grid.items():
