@@ -229,8 +229,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "sweep-plot",
         help="a sweep metric against a parameter, with 95 %% bands",
-        description="One sweep metric against a swept parameter, mean over "
-        "realisations with Student-t 95 % bands.",
+        description="One sweep metric against a swept parameter: the median over "
+        "realisations with its percentile-bootstrap 95 % band (a per-point quantity such as "
+        "rms_ratio_median with its stored interval); axes labelled with units.",
     )
     p.add_argument("dataset", help="sweep directory or sweep.nc")
     p.add_argument("--metric", required=True, help="a variable of the dataset, required")
