@@ -102,7 +102,9 @@ def test_ratio_status_separates_direction_magnitude_and_inconclusive():
     # the coupled / single RMS ratio of the quick run against the paper's 1 %
     assert paper.ratio_status(0.077, 0.66, 1e-2, "below") == "direction reproduced; magnitude not"
     assert paper.ratio_status(0.005, 0.66, 1e-2, "below") == "direction and magnitude reproduced"
-    assert paper.ratio_status(0.5, 1.3, 1e-2, "below") == "inconclusive"
+    assert paper.ratio_status(0.005, 1.3, 1e-2, "below") == "inconclusive"
+    # the velocity density ratio of the quick run: the paper's 2 excluded, 1 inside
+    assert paper.ratio_status(0.83, 1.13, 2.0, "above") == "direction inconclusive; magnitude not"
     assert paper.ratio_status(1.1, 1.3, 1e-2, "below") == "not reproduced"
     assert paper.ratio_status(1.1, 1.9, 2.0, "above") == "direction reproduced; magnitude not"
     assert paper._verdict(["inconclusive"] * 24) == "inconclusive"

@@ -220,7 +220,8 @@ VERDICT_RULE = (
     "direction and magnitude reproduced: the 95 % interval lies on the claimed side of 1 and "
     "contains the paper's value; direction reproduced; magnitude not: on the claimed side, the "
     "paper's value outside; not reproduced: the interval lies on the other side of 1; "
-    "inconclusive: the interval contains 1"
+    "direction inconclusive; magnitude not: the interval contains 1 but not the paper's value; "
+    "inconclusive: the interval contains 1 and the paper's value"
 )
 #: the rule of the robustness table's verdict over the estimator choices
 ROBUSTNESS_RULE = (
@@ -239,7 +240,11 @@ def ratio_status(lo: float, hi: float, paper: float, side: str) -> str:
         if lo <= paper <= hi:
             return "direction and magnitude reproduced"
         return "direction reproduced; magnitude not"
-    return "not reproduced" if d == "contradicts" else "inconclusive"
+    if d == "contradicts":
+        return "not reproduced"
+    if np.isfinite(lo) and np.isfinite(hi) and not lo <= paper <= hi:
+        return "direction inconclusive; magnitude not"
+    return "inconclusive"
 
 
 def _direction(lo: float, hi: float, side: str) -> str:
