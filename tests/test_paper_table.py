@@ -44,7 +44,8 @@ def test_paper_section_escapes_pipes_and_fills_missing_values():
            "robustness": {"summary": [{"claim": "x", "where": "section 3.2", "n_choices": 2,
                                        "supports": 1, "contradicts": 0, "inconclusive": 1,
                                        "estimate_range": None, "paper_in_ci": "1/2",
-                                       "supports_by_choice": {}, "verdict": "robust"}]},
+                                       "supports_by_choice": {},
+                                       "verdict": "robust: reproduced"}]},
            "nonlinear": []}  # fmt: skip
     md = "\n".join(paper_section(res))
     _check_tables(md)
@@ -75,7 +76,11 @@ def test_every_row_is_attributed_and_experiment_claims_are_not_model_checks(smok
                         for r in half)  # fmt: skip
     assert {s["key"] for s in rob["summary"]} == set(paper.CLAIMS)
     for s in rob["summary"]:
-        assert s["verdict"] in ("robust", "estimator-dependent", "not reproduced")
+        assert s["verdict"].startswith("robust: ") or s["verdict"] in (
+            "estimator-dependent",
+            "not reproduced",
+            "inconclusive",
+        )
     results = {"profile": "smoke", "status": "pass", "elapsed_s": 0, "versions": {},
                "counts": {"pass": 0, "fail": 0, "inconclusive": 0}, "checks": [],
                "paper": rows, "robustness": rob, "nonlinear": nl, "amplitude_scan": [],
@@ -91,3 +96,23 @@ def test_robustness_re_estimates_one_set_of_simulations(smoke_tables):
     # more estimator choices than simulations: the series were cached per model
     assert len({(e["choice"]["window"], e["choice"]["dominance"]) for e in peaks}) == 4
     assert np.isfinite([e["estimate"] for e in rob["outcomes"]["velocity"]]).all()
+
+
+def test_ratio_status_separates_direction_magnitude_and_inconclusive():
+    # the coupled / single RMS ratio of the quick run against the paper's 1 %
+    assert paper.ratio_status(0.077, 0.66, 1e-2, "below") == "direction reproduced; magnitude not"
+    assert paper.ratio_status(0.005, 0.66, 1e-2, "below") == "direction and magnitude reproduced"
+    assert paper.ratio_status(0.005, 1.3, 1e-2, "below") == "inconclusive"
+    # the velocity density ratio of the quick run: the paper's 2 excluded, 1 inside
+    assert paper.ratio_status(0.83, 1.13, 2.0, "above") == "direction inconclusive; magnitude not"
+    assert paper.ratio_status(1.1, 1.3, 1e-2, "below") == "not reproduced"
+    assert paper.ratio_status(1.1, 1.9, 2.0, "above") == "direction reproduced; magnitude not"
+    assert paper._verdict(["inconclusive"] * 24) == "inconclusive"
+    assert paper._verdict(["inconclusive", "contradicts"]) == "not reproduced"
+    assert paper._verdict(["supports", "inconclusive"]) == "estimator-dependent"
+    assert paper._verdict(["supports"] * 2, [True, False]) == (
+        "robust: direction reproduced; magnitude in 1/2 choices"
+    )
+    assert paper._verdict(["supports"] * 2, [False, False]) == (
+        "robust: direction reproduced; magnitude not"
+    )

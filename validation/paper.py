@@ -214,6 +214,39 @@ def _density_peak_ratios(cs: np.ndarray, cc: np.ndarray, edges, n_boot: int, see
     }  # fmt: skip
 
 
+#: the rule of the paper table's status of a claim with a direction (a ratio below or above
+#: 1) and a paper value
+VERDICT_RULE = (
+    "direction and magnitude reproduced: the 95 % interval lies on the claimed side of 1 and "
+    "contains the paper's value; direction reproduced; magnitude not: on the claimed side, the "
+    "paper's value outside; not reproduced: the interval lies on the other side of 1; "
+    "direction inconclusive; magnitude not: the interval contains 1 but not the paper's value; "
+    "inconclusive: the interval contains 1 and the paper's value"
+)
+#: the rule of the robustness table's verdict over the estimator choices
+ROBUSTNESS_RULE = (
+    "robust: every choice supports the claim (then: magnitude reproduced when the paper's value "
+    "is inside every interval, not when inside none, else in how many); estimator-dependent: "
+    "some choices support it, some do not; not reproduced: none supports it and at least one "
+    "contradicts it; inconclusive: every choice is inconclusive"
+)
+
+
+def ratio_status(lo: float, hi: float, paper: float, side: str) -> str:
+    """Paper-table status of a ratio claimed ``side`` ('below' / 'above') of 1 whose paper
+    value is ``paper``, from its 95 % interval [lo, hi] (:data:`VERDICT_RULE`)."""
+    d = _direction(lo, hi, side)
+    if d == "supports":
+        if lo <= paper <= hi:
+            return "direction and magnitude reproduced"
+        return "direction reproduced; magnitude not"
+    if d == "contradicts":
+        return "not reproduced"
+    if np.isfinite(lo) and np.isfinite(hi) and not lo <= paper <= hi:
+        return "direction inconclusive; magnitude not"
+    return "inconclusive"
+
+
 def _direction(lo: float, hi: float, side: str) -> str:
     """'supports' when the 95 % interval lies on the claimed side of 1, 'contradicts' when
     on the other, else 'inconclusive'."""
@@ -235,13 +268,21 @@ def _slope_agreement(a: float, sa: float, b: float, sb: float) -> str:
     return "supports" if z <= 2 else ("contradicts" if z > 3 else "inconclusive")
 
 
-def _verdict(outcomes: list[str]) -> str:
-    """robust: every estimator choice supports the claim; not reproduced: none does."""
+def _verdict(outcomes: list[str], in_ci: list[bool] | None = None) -> str:
+    """Verdict over the estimator choices (:data:`ROBUSTNESS_RULE`); ``in_ci``: per choice,
+    whether the paper's value lies inside its interval (None: no single paper number)."""
     if outcomes and all(o == "supports" for o in outcomes):
-        return "robust"
-    if not any(o == "supports" for o in outcomes):
+        if not in_ci:
+            return "robust: reproduced"
+        k = sum(in_ci)
+        mag = ("magnitude reproduced" if k == len(in_ci) else "magnitude not" if k == 0
+               else f"magnitude in {k}/{len(in_ci)} choices")  # fmt: skip
+        return f"robust: direction reproduced; {mag}"
+    if any(o == "supports" for o in outcomes):
+        return "estimator-dependent"
+    if any(o == "contradicts" for o in outcomes):
         return "not reproduced"
-    return "estimator-dependent"
+    return "inconclusive"
 
 
 def peak_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
@@ -415,7 +456,7 @@ def rms_and_velocity(profile: Profile, threads: int | None) -> tuple[list[dict],
         r = full[stat]
         rows.append(_row(
             f"RMS coupled / single, {label} over realisations", 1e-2, r["ratio"], r["ci95"],
-            settings, "reproduced" if r["ci95"][1] < 1 else "not reproduced",
+            settings, ratio_status(*r["ci95"], 1e-2, "below"),
             "paper: 'as low as 1 %' in RMS and maximum (text); a ratio below 1 is the claim"
             " (coupling suppresses the error)", where=where,
         ))  # fmt: skip
@@ -428,7 +469,7 @@ def rms_and_velocity(profile: Profile, threads: int | None) -> tuple[list[dict],
             pk[0],
             list(pk[1:]),
             settings,
-            "reproduced" if pk[2] < 1 else "not reproduced",
+            ratio_status(pk[1], pk[2], 1e-2, "below"),
             "paper: 'as low as 1 %' of the maximal values (text)",
             where=where,
         )
@@ -465,12 +506,7 @@ def rms_and_velocity(profile: Profile, threads: int | None) -> tuple[list[dict],
             f"{profile.decimate} ms, bin |v| < 0.1 x median per-realisation SD")  # fmt: skip
     for v in vel:
         label = "velocities normalised per realisation" if v["normalised"] else "velocities"
-        ok = v["ci95"][0] <= 2.0 <= v["ci95"][1]
-        status = (
-            "reproduced"
-            if ok
-            else ("not reproduced" if v["ci95"][1] < 1.5 or v["ci95"][0] > 2.5 else "inconclusive")
-        )
+        status = ratio_status(v["ci95"][0], v["ci95"][1], 2.0, "above")
         rows.append(_row(f"p(dq1/dt) / p(dx/dt) near 0, {label}", 2.0, v["ratio"], v["ci95"],
                          vset, status, f"h = {v['h']:.3g}; fractions within h: coupled "
                          f"{v['fraction_coupled']:.3g}, single {v['fraction_single']:.3g}",
@@ -523,10 +559,7 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
         ("location", 0.8, "below", "density peak location coupled / single ('20 % shorter')"),
     ):
         v, lo, hi = pk[key]
-        out = _direction(lo, hi, side)
-        status = {"supports": "reproduced", "contradicts": "not reproduced"}.get(
-            out, "inconclusive"
-        )
+        status = ratio_status(lo, hi, paper_v, side)
         rows.append(_row(
             f"tau_hat {text}", paper_v, v, [lo, hi], pset, status,
             f"paper value inside the 95 % interval: {'yes' if lo <= paper_v <= hi else 'no'}; "
@@ -546,16 +579,24 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
     sset = (f"{profile.peak_realizations} x {profile.peak_duration:g} s, Welch "
             f"{profile.peak_duration / 4:g} s segments, broken-line fit "
             f"{max(0.05, 16 / profile.peak_duration):.3g}-20 Hz")  # fmt: skip
-    two = all(
+    two_oc = [
         _slope_agreement(f["slope_low"], f["slope_low_se"], f["slope_high"], f["slope_high_se"])
-        == "contradicts"
         for f in (fs, fc)
+    ]
+    # two regimes: the slopes differ (beyond 3 SE) in both models; one model with equal slopes
+    # (within 2 SE) contradicts it; anything else is inconclusive
+    two_status = (
+        "reproduced"
+        if all(t == "contradicts" for t in two_oc)
+        else "not reproduced"
+        if "supports" in two_oc
+        else "inconclusive"
     )
     rows.append(_row(
         "two power-law regimes in the error spectrum (single, coupled)", "two slopes",
         [fs["slope_low"], fs["slope_high"], fc["slope_low"], fc["slope_high"]],
         [fs["slope_low_se"], fs["slope_high_se"], fc["slope_low_se"], fc["slope_high_se"]],
-        sset, "reproduced" if two else "not reproduced",
+        sset, two_status,
         f"slopes low, high (single) and low, high (coupled) with bootstrap SEs; crossovers "
         f"{fs['crossover']:.3g} / {fc['crossover']:.3g} Hz; the paper gives no slope values",
         where="section 3.1, Fig. pwsp",
@@ -575,11 +616,19 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
     lam = laminar_grid(profile, threads, g)[0]
     for m in MODEL_NAMES:
         sl, se = lam[m]["slope"], lam[m]["se"]
-        ok = np.isfinite(sl) and abs(sl + 1.5) <= 2 * se
+        lam_status = (
+            "inconclusive"
+            if not (np.isfinite(sl) and np.isfinite(se))
+            else "reproduced"
+            if abs(sl + 1.5) <= 2 * se
+            else "not reproduced"
+            if abs(sl + 1.5) > 3 * se
+            else "inconclusive"
+        )
         rows.append(_row(
             f"laminar-phase density exponent, {m}", -1.5, sl, se,
             f"|e| < 1 % of its RMS per realisation, durations {10 * dt:g}-20 s",
-            "reproduced" if ok else "not reproduced",
+            lam_status,
             "the paper asserts on-off intermittency (section 3.1) and cites its -3/2 law; it "
             f"reports no exponent. {lam[m]['n_phases']} phases",
             where="section 3.1 (on-off intermittency, with Fig. pwsp)",
@@ -633,6 +682,10 @@ WHERE = {"suppression": "section 3.2, Figs. Be, rms", "velocity": "section 3.2, 
          "peak_height": "section 3.3, Fig. sccpeak:pdf",
          "peak_location": "section 3.3, Fig. sccpeak:pdf", "two_regimes": "section 3.1, Fig. pwsp",
          "unchanged": "section 3.1, Fig. pwsp", "laminar": "section 3.1"}  # fmt: skip
+
+
+#: claims about the direction of a ratio (below / above 1) that also have a paper value
+RATIO_CLAIMS = ("suppression", "velocity", "peak_height", "peak_location")
 
 
 def _outcomes(grids: dict) -> dict[str, list[dict]]:
@@ -727,7 +780,10 @@ def _summary(outcomes: dict[str, list[dict]]) -> list[dict]:
             "estimate_range": [float(np.nanmin(est)), float(np.nanmax(est))] if est else None,
             "paper_in_ci": (f"{sum(e['ci95'][0] <= e['paper'] <= e['ci95'][1] for e in in_ci)}"
                             f"/{len(in_ci)}") if in_ci else "n/a (no single paper number)",
-            "supports_by_choice": by_dim, "verdict": _verdict(oc),
+            "supports_by_choice": by_dim,
+            "verdict": _verdict(oc, [e["ci95"][0] <= e["paper"] <= e["ci95"][1]
+                                     for e in in_ci] if in_ci and claim in RATIO_CLAIMS
+                                else None),
         })  # fmt: skip
     return rows
 
@@ -735,8 +791,7 @@ def _summary(outcomes: dict[str, list[dict]]) -> list[dict]:
 def robustness(profile: Profile, threads: int | None) -> dict:
     """The robustness table: each quantitative model claim across the estimator choices the
     paper leaves unstated (``profile.robustness_grid``), re-estimated on one set of
-    simulations per model.  Verdict: robust (every choice supports the claim), not
-    reproduced (none does), estimator-dependent (otherwise)."""
+    simulations per model.  Verdict: :data:`ROBUSTNESS_RULE`."""
     g = {**_default_grid(profile), **profile.robustness_grid}
     grids = {"rms": rms_grid(profile, threads, g)[0],
              "velocity": velocity_grid(profile, threads, g),

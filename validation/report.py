@@ -68,11 +68,14 @@ def _row_cells(cells: list[Any]) -> str:
 
 def paper_section(results: dict) -> list[str]:
     """The paper table, claim by claim, and the robustness table (validation.paper)."""
+    from .paper import ROBUSTNESS_RULE, VERDICT_RULE
+
     lines = ["", "## Paper reproduction: the paper's claims, one row each", "",
              "System: which system the paper makes the claim about (the linear model of "
              "section 3 or the human experiment of section 4).  Status `not a check` rows are "
              "reported beside the table, with the reason in the note: they are claims about "
-             "the experiment, one noise draw, or numbers set by an unstated initial condition.",
+             "the experiment, one noise draw, or numbers set by an unstated initial condition.  "
+             f"Status of a ratio claim: {VERDICT_RULE}.",
              "",
              "| claim | system | where in the paper | paper | ours | 95 % interval or SE "
              "| status | estimator and run | note |",
@@ -102,8 +105,7 @@ def paper_section(results: dict) -> list[str]:
                   "the estimator choices the paper leaves unstated.  An estimator choice "
                   "*supports* the claim when the 95 % bootstrap interval lies on the claimed "
                   "side (ratios) or the slopes agree / differ as claimed (within 2 / beyond 3 "
-                  "standard errors).  Verdict: robust (every choice supports), not reproduced "
-                  "(none does), estimator-dependent (otherwise).", "",
+                  f"standard errors).  Verdict: {ROBUSTNESS_RULE}.", "",
                   "| claim | where | choices | supports / contradicts / inconclusive | "
                   "range of estimates | paper value inside the interval | supports by choice "
                   "| verdict |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip

@@ -1,4 +1,4 @@
-"""Parameter-study commands: sweep, sweep-plot."""
+"""Parameter-study commands: sweep, sweep-plot, sweep-export."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from ..cli_args import (
     check_out_dir,
     check_out_file,
     check_work,
+    finite_float,
     int_at_least,
     interrupt_signals,
     interrupted_status,
@@ -42,6 +43,10 @@ def study_from_args(a: argparse.Namespace) -> Study:
     for k in ("model", "engine", "realizations", "duration", "seed"):
         if getattr(a, k) is not None:
             d[k] = getattr(a, k)
+    if a.compare:
+        d["compare"] = [m.strip() for m in a.compare.split(",") if m.strip()]
+    if a.target_lambda1 is not None:
+        d["gain"] = {**d.get("gain", {}), "target_lambda1": a.target_lambda1}
     if a.metrics:
         d["metrics"] = [m.strip() for m in a.metrics.split(",") if m.strip()]
     d["grid"], d["fixed"] = grid, fixed
@@ -62,6 +67,16 @@ def cmd_sweep(a: argparse.Namespace) -> int:
         runs=n_points * passes,
         force=a.force,
     )
+    if study.gain:  # every beta*: gains x realisations x duration per model and delay
+        g = study.gain
+        check_work(
+            "gain.duration",
+            g["realizations"],
+            g["duration"],
+            float(dt),
+            runs=n_points * g["gains"],
+            force=a.force,
+        )
     finished = []
     t = time.perf_counter()
     with interrupt_signals() as got:
@@ -120,6 +135,31 @@ def cmd_sweep_plot(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_sweep_export(a: argparse.Namespace) -> int:
+    """One CSV row per grid point and realisation; columns ``name [units]``."""
+    import xarray as xr
+
+    path = Path(a.dataset)
+    if path.is_dir():
+        path = path / "sweep.nc"
+    if not path.is_file():
+        raise ParameterError(f"dataset: no sweep dataset at {a.dataset!r}")
+    csv = check_out_file("--csv", a.csv, (".csv",))
+    try:
+        ds_file = xr.open_dataset(path, engine="scipy")
+    except (OSError, ValueError, TypeError) as exc:
+        raise ParameterError(f"dataset: {str(path)!r} is not a sweep dataset ({exc})") from None
+    with ds_file as ds:
+        ds = ds.load()
+    df = ds.to_dataframe().reset_index()
+    names = {**{c: ds[c].attrs for c in ds.coords}, **{v: ds[v].attrs for v in ds.data_vars}}
+    df.columns = [f"{c} [{names[c]['units']}]" if names.get(c, {}).get("units") else c
+                  for c in df.columns]  # fmt: skip
+    df.to_csv(csv, index=False)
+    print(csv)
+    return EXIT_OK
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "sweep",
@@ -142,6 +182,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--set", action="append", metavar="NAME=V", help="fixed setting (repeatable)")
     p.add_argument("--model", choices=MODEL_NAMES, help="balancing model (default: the study's)")
+    p.add_argument(
+        "--compare",
+        metavar="REF,OTHER",
+        help="two models run with the same seed per realisation, paired ratios and "
+        "differences (e.g. single,coupled; default: the study's)",
+    )
+    p.add_argument(
+        "--target-lambda1",
+        type=finite_float,
+        metavar="LAMBDA1",
+        help="beta per point set to beta* where the reduced model's lambda1 equals this "
+        "(1/s; paper: 5e-4), cached in DIR/gains",
+    )
     add_engine_arg(p, default=None)
     p.add_argument(
         "--metrics", help="comma list from " + ",".join(METRICS) + " (default: the study's)"
@@ -176,11 +229,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "sweep-plot",
         help="a sweep metric against a parameter, with 95 %% bands",
-        description="One sweep metric against a swept parameter, mean over "
-        "realisations with Student-t 95 % bands.",
+        description="One sweep metric against a swept parameter: the median over "
+        "realisations with its percentile-bootstrap 95 % band (a per-point quantity such as "
+        "rms_ratio_median with its stored interval); axes labelled with units.",
     )
     p.add_argument("dataset", help="sweep directory or sweep.nc")
     p.add_argument("--metric", required=True, help="a variable of the dataset, required")
     p.add_argument("--x", required=True, help="the swept parameter on the x axis, required")
     p.add_argument("--out", metavar="FILE.png", help="figure file (default: METRIC_vs_X.png)")
     p.set_defaults(func=cmd_sweep_plot)
+
+    p = sub.add_parser(
+        "sweep-export",
+        help="a sweep dataset as CSV (one row per point and realisation)",
+        description="The sweep dataset as a CSV table: one row per grid point and "
+        "realisation, per-point quantities repeated; column names carry the units.",
+    )
+    p.add_argument("dataset", help="sweep directory or sweep.nc")
+    p.add_argument("--csv", required=True, metavar="FILE.csv", help="CSV file to write, required")
+    p.set_defaults(func=cmd_sweep_export)

@@ -41,9 +41,20 @@ Metrics (:mod:`.evaluate`): ``lambda1`` (per realisation, 1/s), ``rms``
 (log10 RMS of the balancing error, per realisation), ``max_angle`` (rad, per
 realisation, rigid-body engines), ``agreement`` (relative L2 distance to the
 reduced model under the same noise over the first 10 s, per realisation,
-rigid-body engines), ``tau_hat`` (median first STCC peak, s, per
-realisation), ``slopes`` (two spectral slopes of the mean spectrum).  Every
-point also records ``diverged`` and per-realisation ``divergence_time``.
+rigid-body engines), ``tau_hat`` (median first STCC peak, s, with
+``tau_hat_fraction`` and ``tau_hat_avg``, per realisation; settings in the
+study's ``[stcc]`` table), ``slopes`` (two spectral slopes of the mean
+spectrum with bootstrap SEs).  Every point also records ``diverged`` and
+per-realisation ``divergence_time``.
+
+Research studies: ``compare = [A, B]`` runs two models at every point with
+the same seeds and stores paired ratios and differences with bootstrap
+intervals (:mod:`.paired`); a ``[gain]`` table sets beta per point to beta*
+of a target lambda1 (:mod:`.gains`); every variable and coordinate carries
+CF ``long_name`` / ``units`` and the settings in force are global attributes
+(:mod:`.attrs`, :func:`.store.effective_settings`).  A setting that cannot
+change a result (a rigid-body setting on the reduced engine, a rod setting on
+a one-stick model) is refused.
 """
 
 from .evaluate import evaluate_point

@@ -15,6 +15,8 @@ PHYSICAL_KEYS = (
     "rod_length", "rod_length_ratio", "mass_ratio", "rod_mass", "bob_radius",
     "solref_timeconst", "solref_dampratio", "solimp_width", "integrator",
 )  # fmt: skip
+#: settings of the rod joining two sticks' tips (no effect on a one-stick model)
+ROD_KEYS = ("rod_length", "rod_length_ratio", "rod_mass")
 RUN_KEYS = ("amplitude",)
 SETTINGS = REDUCED_KEYS + PHYSICAL_KEYS + RUN_KEYS
 #: settings whose values are words, not numbers
@@ -26,19 +28,22 @@ DEFAULT_AMPLITUDE = 1e-3
 DEFAULT_MASS_RATIO = 1e-3
 
 
-def point_params(study: Any, point: dict[str, Any]):
+def point_params(study: Any, point: dict[str, Any], beta: float | None = None):
     """(BalanceParams, CIPParams or None, amplitude) of one grid point of ``study``.
 
     ``study`` is a :class:`validation.sweeps.study.Study` (its ``model``,
-    ``engine`` and ``fixed`` settings).
+    ``engine`` and ``fixed`` settings; a ``compare`` study's point names its model).
 
     The physical parameters (:class:`cip.model.CIPParams`) are built for an
-    engine with ``capabilities.rigid_body``; beta defaults to the paper's gain
+    engine with ``capabilities.rigid_body``; beta is ``beta`` when given (a
+    study's target gain beta*, 1/s^2), else the study's, else the paper's gain
     for lambda1 = 5e-4 (:data:`validation.profiles.PAPER_BETA`).
     """
     s = {**study.fixed, **point}
     red = {k: float(s[k]) for k in REDUCED_KEYS if k in s}
-    red.setdefault("beta", PAPER_BETA[get_model(study.model).name])
+    if beta is not None:
+        red["beta"] = float(beta)
+    red.setdefault("beta", PAPER_BETA[get_model(study.model_of(point)).name])
     params = BalanceParams(**red)
     amplitude = float(s.get("amplitude", DEFAULT_AMPLITUDE))
     phys = None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,8 @@ from cipcore.params import ParameterError
 from .store import is_number
 from .study import Study
 
+#: axis labels of the settings and metrics (kept for callers; plots read the dataset's
+#: CF ``long_name`` / ``units``, see :mod:`validation.sweeps.attrs`)
 LABELS = {
     "lambda1": "largest Lyapunov exponent lambda1 (1/s)",
     "rms": "log10 RMS of the balancing error (log10 m)",
@@ -40,10 +43,32 @@ def mean_ci(ds, name: str):
     return m, t * sd / np.sqrt(n)
 
 
+def median_ci(ds, name: str, seed: int = 0):
+    """Median over realisations and its percentile-bootstrap 95 % interval (NaNs dropped):
+    (median, low, high) DataArrays over the other dimensions."""
+    import xarray as xr
+
+    from .paired import summary_ci
+
+    a = ds[name]
+    if "realization" not in a.dims:
+        return a, a * np.nan, a * np.nan
+    a = a.transpose(..., "realization")
+    shape = a.shape[:-1]
+    est, lo, hi = np.full(shape, np.nan), np.full(shape, np.nan), np.full(shape, np.nan)
+    for i, idx in enumerate(np.ndindex(*shape)):
+        est[idx], lo[idx], hi[idx] = summary_ci(a.values[idx], "median", seed, i)
+    coords = {d: a[d] for d in a.dims[:-1]}
+    return tuple(xr.DataArray(v, dims=a.dims[:-1], coords=coords) for v in (est, lo, hi))
+
+
 def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
-    """A metric against one swept parameter, one line per value of the others,
-    with 95 % confidence bands over realisations."""
+    """A metric against one swept parameter, one line per value of the others: the median
+    over realisations with its bootstrap 95 % band (a per-point quantity: its value, with
+    its ``_ci_low`` / ``_ci_high`` band when the dataset has one).  Axes carry the
+    variables' ``long_name [units]``."""
     from ..plots import plt
+    from .attrs import label
 
     if metric not in ds:
         raise ParameterError(
@@ -52,63 +77,152 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
     if x not in ds.dims or x == "realization":
         dims = [d for d in ds.dims if d != "realization"]
         raise ParameterError(f"--x: {x!r} is not a swept parameter; swept: {', '.join(dims)}")
-    m, h = mean_ci(ds, metric)
+    per = "realization" in ds[metric].dims
+    if per:
+        m, lo, hi = median_ci(ds, metric)
+    elif f"{metric}_ci_low" in ds:
+        m, lo, hi = ds[metric], ds[f"{metric}_ci_low"], ds[f"{metric}_ci_high"]
+    else:
+        m, lo, hi = ds[metric], ds[metric] * np.nan, ds[metric] * np.nan
     others = [d for d in m.dims if d != x]
     fig, ax = plt.subplots(figsize=(6.4, 4.0), constrained_layout=True)
-    stacked = m.stack(line=others) if others else m.expand_dims(line=[0])
-    hw = h.stack(line=others) if others else h.expand_dims(line=[0])
+
+    def lines(a):
+        return a.stack(line=others) if others else a.expand_dims(line=[0])
+
+    sm, slo, shi = lines(m), lines(lo), lines(hi)
     xs = ds[x].values
-    for k in range(stacked.sizes["line"]):
-        y = stacked.isel(line=k).transpose(x).values
-        e = hw.isel(line=k).transpose(x).values
-        vals = np.atleast_1d(stacked["line"].values[k])
-        label = ", ".join(f"{d}={v}" for d, v in zip(others, vals, strict=False)) or metric
-        ax.plot(xs, y, "o-", ms=3, label=label)
-        ax.fill_between(xs, y - e, y + e, alpha=0.2)
+    for k in range(sm.sizes["line"]):
+        y = sm.isel(line=k).transpose(x).values
+        vals = np.atleast_1d(sm["line"].values[k])
+        name = ", ".join(f"{d}={v}" for d, v in zip(others, vals, strict=False)) or metric
+        ax.plot(xs, y, "o-", ms=3, label=name)
+        ax.fill_between(xs, slo.isel(line=k).transpose(x).values,
+                        shi.isel(line=k).transpose(x).values, alpha=0.2)  # fmt: skip
     if (
         np.issubdtype(np.asarray(xs).dtype, np.number)
         and np.all(xs > 0)
         and xs.max() / xs.min() > 20
     ):
         ax.set_xscale("log")
-    ax.set_xlabel(LABELS.get(x, x))
-    ax.set_ylabel(LABELS.get(metric, metric))
+    ax.set_xlabel(label(x, dict(ds[x].attrs)))
+    ax.set_ylabel(textwrap.fill(label(metric, dict(ds[metric].attrs)), 42), fontsize=9)
     n = ds.sizes.get("realization", 1)
-    ax.set_title(f"mean over realisations, 95% band ({n} realisations)", fontsize=8)
+    what = (f"median over realisations, bootstrap 95% band ({n} realisations)" if per
+            else "per grid point, bootstrap 95% band")  # fmt: skip
+    ax.set_title(what, fontsize=8)
     ax.legend(fontsize=7)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
+def _ci(v: float, lo: float, hi: float) -> str:
+    return f"{v:.3g} [{lo:.3g}, {hi:.3g}]"
+
+
+def _cells(ds, metric: str, sel: dict, seed: int, index: int) -> list[str]:
+    """Report cells of one per-realisation metric at one point: heavy-tail summaries."""
+    from .paired import summary_ci
+
+    v = np.asarray(ds[metric].sel(sel).values, dtype=float)
+    if metric == "rms":
+        r = 10.0**v
+        med = summary_ci(r, "median", seed, index)
+        geo = summary_ci(r, "geomean", seed, index)
+        fin = r[np.isfinite(r)]
+        share = float(fin.max() / fin.sum()) if fin.size and fin.sum() > 0 else float("nan")
+        return [_ci(*med), _ci(*geo), f"{fin.mean():.3g} (largest {100 * share:.0f} %)"]
+    return [_ci(*summary_ci(v, "median", seed, index))]
+
+
 def write_sweep_report(study: Study, out_dir: Path) -> Path:
-    """DIR/report.md: one figure per metric against the first swept parameter, and a table."""
+    """DIR/report.md: the settings, one figure per metric against the first swept parameter
+    (median and bootstrap 95 % band), the paired comparisons of a ``compare`` study and its
+    target gains beta* with their intervals, and a table of heavy-tail summaries."""
     import xarray as xr
+
+    from .attrs import label
 
     out_dir = Path(out_dir)
     with xr.open_dataset(out_dir / "sweep.nc", engine="scipy") as ds:
         ds = ds.load()
     x = next(iter(study.grid))
+    models = " vs ".join(study.compare) if study.compare else study.model
+    settings = {k: np.asarray(v).tolist() for k, v in ds.attrs.items()
+                if k.startswith(("param_", "stcc_", "gain_"))}  # fmt: skip
     lines = [f"# Sweep {study.name}", "",
-             f"{study.model} model, engine {study.engine}, {study.realizations} realisations x "
+             f"{models} model, engine {study.engine}, {study.realizations} realisations x "
              f"{study.duration:g} s per point, seed {study.seed} "
-             f"({'common random numbers' if study.common_random_numbers else 'seed per point'}).",
-             "", f"Fixed: {json.dumps(study.fixed)}", ""]  # fmt: skip
+             f"({'common random numbers' if study.common_random_numbers else 'seed per point'}"
+             f"{'; the compared models share each point seed' if study.compare else ''}).",
+             "", f"Fixed: {json.dumps(study.fixed)}", "",
+             f"Settings in force: {json.dumps(settings)}", ""]  # fmt: skip
+    if study.gain:
+        g = study.gain
+        lines += [f"beta per point: beta*, where lambda1 of the reduced model = "
+                  f"{g['target_lambda1']:g} 1/s ({g['gains']} gains over the paper gain +- "
+                  f"{g['half_width']:g} 1/s^2, {g['realizations']} realisations x "
+                  f"{g['duration']:g} s, quadratic fit, bootstrap 95 % interval).", ""]  # fmt: skip
+        png = plot_metric(ds, "beta_star", x, out_dir / "sweep_beta_star.png")
+        lines += [f"![beta_star]({png.name})", ""]
+    if study.compare:
+        ref, cmp_ = study.compare
+        lines += [f"## {cmp_} vs {ref} (paired by realisation: same seed and stream)", "",
+                  "Ratios: compared / reference; differences: compared - reference; "
+                  "percentile bootstrap 95 % intervals over paired realisations.", ""]  # fmt: skip
+        paired = [v for v in ds.data_vars if ("_ratio_" in v or "_diff_" in v)
+                  and not v.endswith(("_ci_low", "_ci_high"))]  # fmt: skip
+        for v in paired:
+            if v.startswith("rms_ratio"):
+                png = plot_metric(ds, v, x, out_dir / f"sweep_{v}.png")
+                lines += [f"![{v}]({png.name})", ""]
+        gdims = list(study.grid)
+        head = gdims + [label(v, dict(ds[v].attrs)) for v in paired]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        pts = [{k: p[k] for k in gdims} for p in study.points() if p["model"] == ref]
+        for point in pts:
+            sel = {k: (float(v) if is_number(v) else str(v)) for k, v in point.items()}
+            cells = [str(point[k]) for k in gdims]
+            for v in paired:
+                cells.append(_ci(float(ds[v].sel(sel)), float(ds[f"{v}_ci_low"].sel(sel)),
+                                 float(ds[f"{v}_ci_high"].sel(sel))))  # fmt: skip
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
     per = [m for m in ds.data_vars if "realization" in ds[m].dims and m != "divergence_time"]
     for metric in per:
         png = plot_metric(ds, metric, x, out_dir / f"sweep_{metric}.png")
         lines += [f"![{metric}]({png.name})", ""]
-    dims = [d for d in study.grid]
-    head = dims + [f"{m} (mean +- 95%)" for m in per]
+    lines += ["## Per point", "",
+              "Median and geometric mean over realisations with percentile-bootstrap 95 % "
+              "intervals (the RMS of the balancing error is heavy-tailed: its mean is carried "
+              "by the largest realisations, shown as that realisation's share of the sum, and "
+              "is not a stable summary).  tau_hat: median first dominant STCC peak over the "
+              "windows that have one, read beside tau_hat_fraction (the fraction of windows "
+              "with a peak); tau_hat_avg: lag of the maximum of the window-averaged STCC.  "
+              "Slopes: fit of the mean spectrum +- 1.96 bootstrap SE.", ""]  # fmt: skip
+    dims = list(study.axes())
+    head = list(dims)
+    for m in per:
+        if m == "rms":
+            head += ["median RMS (m) [95%]", "geometric-mean RMS (m) [95%]",
+                     "mean RMS (m), unstable"]  # fmt: skip
+        else:
+            lab = label(m, dict(ds[m].attrs))
+            head.append(f"{lab if lab.startswith('median') else 'median ' + lab} [95%]")
+    slopes = [k for k in ("slope_low", "slope_high") if k in ds]
+    head += [f"{k} [95%]" for k in slopes]
     if "divergence_time" in ds:
         head.append("diverged (realisations)")
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for point in study.points():
+    for i, point in enumerate(study.points()):
         sel = {k: (float(v) if is_number(v) else str(v)) for k, v in point.items()}
         cells = [str(point[k]) for k in dims]
         for m in per:
-            mean, hw = mean_ci(ds, m)
-            cells.append(f"{float(mean.sel(sel)):.4g} +- {float(hw.sel(sel)):.2g}")
+            cells += _cells(ds, m, sel, study.seed, i)
+        for k in slopes:
+            v, se = float(ds[k].sel(sel)), float(ds[f"{k}_se"].sel(sel))
+            cells.append(_ci(v, v - 1.96 * se, v + 1.96 * se))
         if "divergence_time" in ds:
             t = ds["divergence_time"].sel(sel).values
             cells.append(str(int(np.isfinite(t).sum())))

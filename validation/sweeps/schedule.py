@@ -13,8 +13,9 @@ from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 
 from .evaluate import evaluate_point
+from .gains import point_gains
 from .store import DirectoryLock, Store, write_dataset
-from .study import Study
+from .study import Study, point_key
 
 
 @dataclass
@@ -40,6 +41,8 @@ def run_sweep(
 ) -> SweepReport:
     """Compute every missing grid point, persist each, assemble ``sweep.nc``.
 
+    A study with a ``[gain]`` target first finds beta* of every point
+    (:func:`validation.sweeps.gains.point_gains`, cached in ``DIR/gains``).
     ``workers`` single-threaded processes (default: one per core; 1 runs in
     this process), or the Dask cluster at ``scheduler``.  The directory is
     locked for the whole sweep (:class:`validation.sweeps.store.DirectoryLock`):
@@ -55,6 +58,13 @@ def run_sweep(
         points = study.points()
         todo = [p for p in points if store.load(p) is None]
         reused = len(points) - len(todo)
+        packs = get_engine(study.engine).capabilities.packs_points
+        if packs and (study.compare or study.gain):
+            raise ParameterError(
+                f"engine {study.engine}: compare and [gain] studies run on a CPU engine "
+                "(this engine packs points into one batch with the study's model and beta)"
+            )
+        gains = point_gains(study, out) if todo else {}
         bar = tqdm(total=len(points), initial=reused, desc=f"sweep {study.name}",
                    unit="point", disable=not progress)  # fmt: skip
         sd = study.as_dict()
@@ -68,18 +78,18 @@ def run_sweep(
         try:
             if not todo:
                 pass
-            elif get_engine(study.engine).capabilities.packs_points:
+            elif packs:
                 from ..gpu_sweep import evaluate_points  # one batch of every point x realisation
 
                 for p, r in zip(todo, evaluate_points(sd, todo), strict=True):
                     finished(p, r)
             elif scheduler:
-                _run_dask(scheduler, sd, todo, finished)
+                _run_dask(scheduler, sd, todo, finished, gains)
             elif (workers or os.cpu_count() or 1) <= 1:
                 for p in todo:
-                    finished(p, evaluate_point(sd, p, threads=1))
+                    finished(p, evaluate_point(sd, p, 1, gains.get(point_key(p))))
             else:
-                _run_local(workers or os.cpu_count() or 1, sd, todo, finished)
+                _run_local(workers or os.cpu_count() or 1, sd, todo, finished, gains)
         finally:
             bar.close()
         path = write_dataset(study, store)
@@ -94,14 +104,14 @@ def run_sweep(
     return SweepReport(computed=len(todo), reused=reused, dataset_path=path, diverged=diverged)
 
 
-def _run_local(workers: int, sd: dict, todo: list[dict], finished) -> None:
+def _run_local(workers: int, sd: dict, todo: list[dict], finished, gains: dict) -> None:
     # forkserver, not fork: forking a process that has loaded a multithreaded
     # runtime (JAX/XLA for mjx, warp) can deadlock the child
     pool = ProcessPoolExecutor(
         max_workers=workers, mp_context=multiprocessing.get_context("forkserver")
     )
     try:
-        futs = {pool.submit(evaluate_point, sd, p, 1): p for p in todo}
+        futs = {pool.submit(evaluate_point, sd, p, 1, gains.get(point_key(p))): p for p in todo}
         pending = set(futs)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
@@ -114,7 +124,7 @@ def _run_local(workers: int, sd: dict, todo: list[dict], finished) -> None:
     pool.shutdown(wait=True)
 
 
-def _run_dask(address: str, sd: dict, todo: list[dict], finished) -> None:
+def _run_dask(address: str, sd: dict, todo: list[dict], finished, gains: dict) -> None:
     try:
         from dask.distributed import Client, as_completed
     except ImportError:
@@ -126,7 +136,8 @@ def _run_dask(address: str, sd: dict, todo: list[dict], finished) -> None:
     except OSError as exc:
         raise ParameterError(f"--scheduler: cannot reach {address!r} ({exc})") from None
     with client:
-        futs = [client.submit(evaluate_point, sd, p, 1, pure=False) for p in todo]
+        futs = [client.submit(evaluate_point, sd, p, 1, gains.get(point_key(p)), pure=False)
+                for p in todo]  # fmt: skip
         point_of = {f.key: p for f, p in zip(futs, todo, strict=True)}
         for fut in as_completed(futs):
             finished(point_of[fut.key], fut.result())

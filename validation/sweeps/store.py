@@ -17,6 +17,7 @@ refused, so two studies can never mix.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import fcntl
 import hashlib
@@ -26,6 +27,7 @@ import socket
 import time
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -141,12 +143,24 @@ class Store:
 
 # ---------------------------------------------------------- the dataset
 def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
-    """xarray.Dataset from (point, result) pairs in grid order."""
+    """xarray.Dataset from (point, result) pairs in grid order.
+
+    Dimensions: ``model`` (a ``compare`` study), the swept settings, and
+    ``realization`` for per-realisation metrics.  Every variable and
+    coordinate carries CF ``long_name`` and ``units``
+    (:mod:`validation.sweeps.attrs`); a ``compare`` study adds the paired
+    comparisons (:mod:`validation.sweeps.paired`); the global attributes hold
+    the study, the settings in force (:func:`effective_settings`), the seed
+    rule and the package versions.
+    """
     import xarray as xr
 
-    dims = list(study.grid)
-    shape = [len(study.grid[k]) for k in dims]
-    index = {k: {json.dumps(v): i for i, v in enumerate(study.grid[k])} for k in dims}
+    from .attrs import coord_attrs, variable_attrs
+
+    axes = study.axes()
+    dims = list(axes)
+    shape = [len(axes[k]) for k in dims]
+    index = {k: {json.dumps(v): i for i, v in enumerate(axes[k])} for k in dims}
     n = study.realizations
     names: dict[str, np.ndarray] = {}
     for point, res in results:
@@ -163,20 +177,80 @@ def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
     for name, arr in names.items():
         d = dims + (["realization"] if arr.ndim > len(dims) else [])
         data_vars[name] = (d, arr.astype(np.int32) if arr.dtype == bool else arr)
-    coords = {k: _coord(study.grid[k]) for k in dims}
+    coords = {k: _coord(axes[k]) for k in dims}
     coords["realization"] = np.arange(n)
     ds = xr.Dataset(data_vars, coords=coords)
+    if study.compare and "realization" in ds.dims:
+        from .paired import paired_variables
+
+        for name, v in paired_variables(ds, list(study.compare), study.seed).items():
+            ds[name] = v
+    for name in ds.data_vars:
+        ds[name].attrs = variable_attrs(name)
+        if study.compare and "compared" in ds[name].attrs.get("long_name", ""):
+            ln = ds[name].attrs["long_name"]
+            ref, other = study.compare
+            ds[name].attrs["long_name"] = ln.replace("compared", other).replace("reference", ref)
+    for name in ds.coords:
+        ds[name].attrs = coord_attrs(name)
     ds.attrs = {
+        "Conventions": "CF-1.8",
+        "title": f"cipval parameter study {study.name}",
         "study": json.dumps(study.as_dict()),
         "fingerprint": study.fingerprint(),
+        "seed": study.seed,
         "seed_rule": "common random numbers" if study.common_random_numbers
-        else "SeedSequence(seed, spawn_key=(crc32(point json),))",
+        else "SeedSequence(seed, spawn_key=(crc32(point json without model),))",
         "versions": json.dumps(package_versions()),
         "units": json.dumps({"lambda1": "1/s", "rms": "log10 m", "max_angle": "rad",
                              "agreement": "relative L2", "tau_hat": "s",
                              "divergence_time": "s"}),
+        **effective_settings(study),
     }  # fmt: skip
     return ds
+
+
+def effective_settings(study: Study) -> dict[str, Any]:
+    """Global attributes: every parameter in force that the grid does not sweep, and every
+    estimator setting (NetCDF attributes are numbers or text).
+
+    ``param_<name>`` are the reduced-model parameters (beta, alpha 1/s^2, gamma
+    1/s, nu s^1/2, tau, dt s) and, for a rigid-body engine, the physical ones
+    (lengths m, masses kg) of the study's first grid point, for those the grid
+    does not sweep (a swept one is a coordinate; beta under a ``[gain]``
+    target is the variable ``beta_star``); ``stcc_<name>`` the tau_hat
+    estimator's settings, ``gain_<name>`` the target-gain settings.
+    """
+    from .mapping import DEFAULT_AMPLITUDE, point_params
+
+    point = study.points()[0]
+    params, phys, amplitude = point_params(study, point, beta=1.0 if study.gain else None)
+    swept = set(study.axes())
+    out: dict[str, Any] = {}
+    for k, v in params.as_dict().items():
+        if k not in swept and not (k == "beta" and study.gain):
+            out[f"param_{k}"] = float(v)
+    if "amplitude" not in swept:
+        out["param_amplitude"] = float(amplitude if amplitude is not None else DEFAULT_AMPLITUDE)
+    if phys is not None:
+        for k, v in dataclasses.asdict(phys).items():
+            if k in swept or k in ("alpha", "gamma", "nu", "tau", "dt", "beta"):
+                continue
+            if isinstance(v, bool) or not isinstance(v, int | float | str | tuple | list):
+                continue
+            out[f"param_{k}"] = list(v) if isinstance(v, tuple) else v
+    if "model" not in swept:
+        out["param_model"] = study.model
+    out["engine"] = study.engine
+    out["realizations"] = study.realizations
+    out["duration_s"] = float(study.duration)
+    out["decimate"] = study.decimate
+    if "tau_hat" in study.metrics:
+        out.update({f"stcc_{k}": float(v) for k, v in study.stcc.items()})
+        out["stcc_significance"] = ("Bartlett: R > z / sqrt(n_eff) per window"
+                                    if study.stcc["significance_z"] > 0 else "none")  # fmt: skip
+    out.update({f"gain_{k}": v for k, v in study.gain.items()})
+    return out
 
 
 def is_number(v: object) -> bool:

@@ -26,7 +26,7 @@ from cipcore.registry import check_engine_name, get_engine
 
 from ..profiles import Profile
 from ..versions import package_versions
-from .mapping import SETTINGS, WORD_SETTINGS, point_params
+from .mapping import ROD_KEYS, SETTINGS, WORD_SETTINGS, point_params
 
 METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
 #: metrics defined only for an engine with ``capabilities.rigid_body``
@@ -34,6 +34,18 @@ RIGID_BODY_METRICS = ("max_angle", "agreement")
 #: STCC settings of the tau_hat metric: the profiles' (paper: window Dt = 5 s)
 STCC = Profile(name="sweep")
 STCC_MIN_DURATION = STCC.stcc_window + STCC.stcc_max_lag + 1.0
+#: the tau_hat estimator's settings a study may set in its ``[stcc]`` table, with defaults:
+#: window Dt (s, paper: 5 s), largest lag (s), window stride (s), peak dominance (a peak
+#: counts when R >= dominance x the largest R over the lags) and the Bartlett significance
+#: level z (R must exceed z / sqrt(n_eff); 0 switches the significance test off)
+STCC_DEFAULTS = {"window": STCC.stcc_window, "max_lag": STCC.stcc_max_lag,
+                 "stride": STCC.stcc_stride, "dominance": 0.8, "significance_z": 3.0}  # fmt: skip
+#: the target-gain settings of a study's ``[gain]`` table, with defaults: beta per point is
+#: beta*, where lambda1 of the reduced model equals ``target_lambda1`` (1/s), found by
+#: :func:`reduced.lyapunov.critical_gain` over ``gains`` gains spread over the model's
+#: paper gain +- ``half_width`` (1/s^2), ``realizations`` x ``duration`` s each
+GAIN_DEFAULTS = {"target_lambda1": 5e-4, "half_width": 0.8, "gains": 5, "realizations": 16,
+                 "duration": 1000.0}  # fmt: skip
 
 
 @dataclass
@@ -51,9 +63,23 @@ class Study:
     decimate: int = 5
     fixed: dict[str, Any] = field(default_factory=dict)
     grid: dict[str, list] = field(default_factory=dict)
+    compare: tuple[str, ...] = ()
+    gain: dict[str, Any] = field(default_factory=dict)
+    stcc: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         get_model(self.model)
+        self.compare = tuple(self.compare or ())
+        if self.compare:
+            if len(self.compare) != 2 or len(set(self.compare)) != 2:
+                raise ParameterError(
+                    f"compare: name two different models (reference first), got "
+                    f"{list(self.compare)!r}"
+                )
+            for m in self.compare:
+                get_model(m)
+        self.gain = _settings("gain", self.gain, GAIN_DEFAULTS)
+        self.stcc = _settings("stcc", self.stcc, STCC_DEFAULTS)
         check_engine_name(self.engine)
         rigid = get_engine(self.engine).capabilities.rigid_body
         if isinstance(self.metrics, str):
@@ -80,6 +106,11 @@ class Study:
         if not isinstance(self.grid, dict) or not self.grid:
             raise ParameterError("grid: a study needs at least one swept parameter")
         for k in [*self.fixed, *self.grid]:
+            if k == "model":
+                raise ParameterError(
+                    'model: compare two models with compare = ["single", "coupled"] in '
+                    "[study] (or --compare single,coupled): paired, with the same seeds"
+                )
             if k not in SETTINGS:
                 raise ParameterError(f"unknown setting {k!r}; allowed: {', '.join(SETTINGS)}")
         for k, vals in self.grid.items():
@@ -89,10 +120,23 @@ class Study:
                 _check_value(f"grid.{k}", k, v)
         for k, v in self.fixed.items():
             _check_value(f"fixed.{k}", k, v)
-        if "tau_hat" in self.metrics and self.duration < STCC_MIN_DURATION:
+        if self.gain and ("beta" in self.fixed or "beta" in self.grid):
             raise ParameterError(
-                f"duration must be >= {STCC_MIN_DURATION:g} s for the tau_hat metric "
-                f"(STCC window {STCC.stcc_window:g} s + lags {STCC.stcc_max_lag:g} s), "
+                "beta: set beta or a [gain] target (beta = beta* per point), not both"
+            )
+        self._check_no_effect(rigid)
+        st = self.stcc
+        if not (st["window"] > 0 and st["stride"] > 0 and st["max_lag"] > 0):
+            raise ParameterError(f"stcc: window, max_lag and stride must be > 0 s, got {st}")
+        if not 0 <= st["dominance"] <= 1 or st["significance_z"] < 0:
+            raise ParameterError(
+                f"stcc: dominance must be in [0, 1] and significance_z >= 0, got {st}"
+            )
+        stcc_min = st["window"] + st["max_lag"] + 1.0
+        if "tau_hat" in self.metrics and self.duration < stcc_min:
+            raise ParameterError(
+                f"duration must be >= {stcc_min:g} s for the tau_hat metric "
+                f"(STCC window {st['window']:g} s + lags {st['max_lag']:g} s), "
                 f"got {self.duration}"
             )
         # validate every point's parameters up front: a bad value fails before any work
@@ -110,30 +154,58 @@ class Study:
             raise ParameterError(f"study file {path}: cannot read ({exc})") from None
         except tomllib.TOMLDecodeError as exc:
             raise ParameterError(f"study file {path}: {exc}") from None
-        unknown = set(d) - {"study", "fixed", "grid"}
+        unknown = set(d) - set(TABLES)
         if unknown:
             raise ParameterError(
                 f"study file {path}: unknown table(s) {', '.join(sorted(unknown))}; "
-                "allowed: [study], [fixed], [grid]"
+                f"allowed: {', '.join(f'[{t}]' for t in TABLES)}"
             )
         s = d.get("study", {})
-        allowed = [f.name for f in dataclasses.fields(cls) if f.name not in ("fixed", "grid")]
+        allowed = [f.name for f in dataclasses.fields(cls) if f.name not in TABLES]
         for k in s:
             if k not in allowed:
                 raise ParameterError(
                     f"study file {path}: unknown key {k!r} in [study]; allowed: "
                     f"{', '.join(allowed)}"
                 )
-        return cls(**s, fixed=d.get("fixed", {}), grid=d.get("grid", {}))
+        return cls(**s, **{t: d.get(t, {}) for t in TABLES if t != "study"})
+
+    def _check_no_effect(self, rigid: bool) -> None:
+        """Refuse, in one line, a setting that cannot change any result of this study."""
+        set_keys = [*self.fixed, *self.grid]
+        physical = [k for k in set_keys if k in PHYSICAL_ONLY]
+        if physical and not rigid:
+            raise ParameterError(
+                f"{physical[0]}: no effect on the {self.engine} engine: it integrates the "
+                "reduced model (eqs. (3), (5)), which has no rigid body, rod or cart mass"
+            )
+        models = self.compare or (self.model,)
+        rod = [k for k in set_keys if k in ROD_KEYS]
+        single = [m for m in models if get_model(m).n_controllers < 2]
+        if rod and single:
+            raise ParameterError(
+                f"{rod[0]}: no effect on the {single[0]} model: it has one stick and no rod "
+                "(the rod joins the tips of two sticks)"
+            )
+
+    def axes(self) -> dict[str, list]:
+        """The study's dimensions and their values: ``model`` (with ``compare``), then the grid."""
+        return {"model": list(self.compare), **self.grid} if self.compare else dict(self.grid)
 
     def points(self) -> list[dict[str, Any]]:
-        keys = list(self.grid)
+        ax = self.axes()
+        keys = list(ax)
         return [dict(zip(keys, vals, strict=True))
-                for vals in itertools.product(*(self.grid[k] for k in keys))]  # fmt: skip
+                for vals in itertools.product(*(ax[k] for k in keys))]  # fmt: skip
+
+    def model_of(self, point: dict[str, Any]) -> str:
+        """The model of one grid point (``compare`` puts it in the point)."""
+        return str(point.get("model", self.model))
 
     def as_dict(self) -> dict:
         d = asdict(self)
         d["metrics"] = list(self.metrics)
+        d["compare"] = list(self.compare)
         return d
 
     def fingerprint(self) -> str:
@@ -145,6 +217,36 @@ class Study:
         """
         key = {"study": self.as_dict(), "versions": package_versions()}
         return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:16]
+
+
+#: the tables of a study TOML file
+TABLES = ("study", "fixed", "grid", "gain", "stcc")
+#: settings of the rigid body alone: the reduced model has none of them
+PHYSICAL_ONLY = tuple(k for k in SETTINGS if k not in ("beta", "alpha", "gamma", "nu", "tau",
+                                                        "dt", "amplitude"))  # fmt: skip
+
+
+def _settings(table: str, given: Any, defaults: dict[str, Any]) -> dict[str, Any]:
+    """A ``[gain]`` / ``[stcc]`` table with its defaults filled in ({} when not given, for
+    ``gain``); unknown keys and non-numbers refused."""
+    if not given:
+        return {} if table == "gain" else dict(defaults)
+    if not isinstance(given, dict):
+        raise ParameterError(f"{table}: expected a table of settings, got {given!r}")
+    for k, v in given.items():
+        if k not in defaults:
+            raise ParameterError(f"{table}.{k}: unknown setting; allowed: {', '.join(defaults)}")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
+            raise ParameterError(f"{table}.{k}: expected a finite number, got {v!r}")
+    out = {**defaults, **{k: float(v) for k, v in given.items()}}
+    if table == "gain":
+        for k in ("gains", "realizations"):
+            if out[k] != int(out[k]) or out[k] < 2:
+                raise ParameterError(f"gain.{k} must be an integer >= 2, got {given[k]!r}")
+            out[k] = int(out[k])
+        if not (out["half_width"] > 0 and out["duration"] > 0):
+            raise ParameterError(f"gain: half_width and duration must be > 0, got {given}")
+    return out
 
 
 def _check_int(name: str, value: Any, minimum: int) -> None:
@@ -165,10 +267,16 @@ def point_key(point: dict[str, Any]) -> str:
 
 
 def point_seed(study: Study, point: dict[str, Any]) -> int:
-    """The seed of one grid point: the study seed, or one derived from it and the point."""
+    """The seed of one grid point: the study seed, or one derived from it and the point.
+
+    The ``model`` of a ``compare`` study is left out of the derivation: the
+    compared models draw from the same random stream at every point (common
+    random numbers across models), so their realisations pair up.
+    """
     if study.common_random_numbers:
         return study.seed
-    key = zlib.crc32(point_key(point).encode())
+    rest = {k: v for k, v in point.items() if k != "model"}
+    key = zlib.crc32(point_key(rest).encode())
     return int(np.random.SeedSequence(study.seed, spawn_key=(key,)).generate_state(1)[0])
 
 
