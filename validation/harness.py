@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from cipcore.atomic import write_bytes
 from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper, plots
@@ -124,9 +125,7 @@ class _Stages:
 
 
 def _atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    write_bytes(path, data)
 
 
 def run_validation(

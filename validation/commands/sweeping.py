@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from cipcore.atomic import WriteError
 from cipcore.models import MODEL_NAMES
 from cipcore.params import ParameterError
 
@@ -75,6 +76,11 @@ def cmd_sweep(a: argparse.Namespace) -> int:
                 on_point=finished.append,
                 wait_for_lock=a.wait,
             )
+        except WriteError as exc:
+            exc.note = (f"the {len(finished)} grid point(s) finished in this run and those of "
+                        f"earlier runs are kept in {out / 'points'}; free space and rerun the "
+                        "same command to finish")  # fmt: skip
+            raise
         except KeyboardInterrupt:
             name, status = interrupted_status(got)
             print(
@@ -84,7 +90,13 @@ def cmd_sweep(a: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return status
-    report = write_sweep_report(study, out)
+    try:
+        report = write_sweep_report(study, out)
+    except WriteError as exc:
+        exc.note = (
+            f"every grid point is kept in {out / 'points'} and the dataset in {out / 'sweep.nc'}"
+        )
+        raise
     print(
         f"sweep {study.name}: {rep.computed} points computed, {rep.reused} reused from {out}, "
         f"{time.perf_counter() - t:.1f} s"

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cipcore.atomic import write_text, write_with
 from cipcore.params import ParameterError
 
 from .store import is_number
@@ -76,7 +77,7 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
     n = ds.sizes.get("realization", 1)
     ax.set_title(f"mean over realisations, 95% band ({n} realisations)", fontsize=8)
     ax.legend(fontsize=7)
-    fig.savefig(path, dpi=110)
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=110))
     plt.close(fig)
     return path
 
@@ -114,5 +115,5 @@ def write_sweep_report(study: Study, out_dir: Path) -> Path:
             cells.append(str(int(np.isfinite(t).sum())))
         lines.append("| " + " | ".join(cells) + " |")
     path = out_dir / "report.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path

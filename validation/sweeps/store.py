@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cipcore.atomic import write_text, write_with
 from cipcore.params import ParameterError
 
 from ..versions import package_versions
@@ -39,9 +40,7 @@ LOCK_NAME = ".lock"
 
 def atomic_write(path: Path, text: str) -> None:
     """Write ``path`` through a temporary name unique to this process, then os.replace."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_text(path, text)
 
 
 class DirectoryLock:
@@ -193,7 +192,4 @@ def write_dataset(study: Study, store: Store) -> Path:
     """Assemble every point of ``store`` into ``DIR/sweep.nc`` (atomically)."""
     ds = assemble(study, [(p, store.load(p)) for p in study.points()])
     path = store.dir / "sweep.nc"
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    ds.to_netcdf(tmp, engine="scipy")
-    os.replace(tmp, path)
-    return path
+    return write_with(path, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
