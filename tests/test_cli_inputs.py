@@ -39,7 +39,7 @@ CASES = [
     ("stability --beta 30 --tau-grid 0:0.3:5", ["--tau-grid", "> 0"]),
     ("stability --beta 30 --roots 0", ["--roots", ">= 1"]),
     ("stability --beta 30 --plot {d}/x.gif", ["--plot", ".png"]),
-    ("sweep --engine reduced --grid beta=abc --metrics rms --out {d}/s", ["grid.beta", "number"]),
+    ("sweep --engine reduced --grid beta=abc --metrics rms --out {d}/s", ["--grid beta", "number"]),
     ("sweep --engine reduced --grid beta= --metrics rms --out {d}/s", ["--grid", "no values"]),
     ("sweep --engine reduced --grid beta --metrics rms --out {d}/s", ["--grid", "NAME="]),
     ("sweep --engine reduced --grid foo=1,2 --metrics rms --out {d}/s", ["foo", "allowed"]),

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cipcore.models import MODEL_NAMES, get_model
-from cipcore.params import PAPER, BalanceParams, ParameterError
+from cipcore.params import PAPER, BalanceParams, ParameterError, whole_steps
 from cipcore.registry import REFERENCE, engine_names
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
@@ -229,6 +229,7 @@ def check_work(
 
     ``runs`` multiplies (e.g. gains of a critical-gain search, grid points of a sweep).
     """
+    whole_steps(option, duration, dt)  # before any work: the engines step whole dt
     work = float(realizations) * runs * duration / dt
     if work > MAX_WORK and not force:
         raise ParameterError(

@@ -54,8 +54,21 @@ def add_stepper_arg(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------- lyapunov
+def check_lyapunov_duration(a: argparse.Namespace, tau: float, dt: float) -> None:
+    """--duration must leave one renormalisation interval (tau) after the transient."""
+    from cipcore.results import min_lyapunov_duration
+
+    shortest = min_lyapunov_duration(tau, dt)
+    if a.duration < shortest:
+        raise ParameterError(
+            f"--duration must be >= {shortest:g} s for lambda1 (one renormalisation interval "
+            f"tau = {tau:g} s after the transient, duration/10), got {a.duration:g}"
+        )
+
+
 def cmd_lyapunov(a: argparse.Namespace) -> int:
     params = params_from_args(a)
+    check_lyapunov_duration(a, params.tau, params.dt)
     engine = get_engine(a.engine)
     kw = engine_options(a, engine)
     check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
@@ -97,6 +110,7 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
         raise ParameterError(f"--beta-range needs LOW < HIGH (1/s^2), got {lo:g} {hi:g}")
     params = params_from_args(a, beta=lo)
     params_from_args(a, beta=hi)
+    check_lyapunov_duration(a, params.tau, params.dt)
     check_work("--duration", a.realizations, a.duration, params.dt, runs=a.gains, force=a.force)
     res = critical_gain(
         a.model,

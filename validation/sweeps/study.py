@@ -26,7 +26,7 @@ from cipcore.registry import check_engine_name, get_engine
 
 from ..profiles import Profile
 from ..versions import package_versions
-from .mapping import SETTINGS, WORD_SETTINGS, point_params
+from .mapping import PHYSICAL_KEYS, SETTINGS, WORD_SETTINGS, point_params
 
 METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
 #: metrics defined only for an engine with ``capabilities.rigid_body``
@@ -87,8 +87,25 @@ class Study:
                 raise ParameterError(f"grid.{k} must be a non-empty list, got {vals!r}")
             for v in vals:
                 _check_value(f"grid.{k}", k, v)
+            seen = [v if isinstance(v, str) else float(v) for v in vals]
+            twice = [v for i, v in enumerate(seen) if v in seen[:i]]
+            if twice:
+                raise ParameterError(
+                    f"grid.{k}: the value {twice[0]:g} is given twice; each value once"
+                    if not isinstance(twice[0], str)
+                    else f"grid.{k}: the value {twice[0]!r} is given twice; each value once"
+                )
         for k, v in self.fixed.items():
             _check_value(f"fixed.{k}", k, v)
+        if not rigid:  # the rigid body's settings mean nothing to this engine
+            for where, keys in (("fixed", self.fixed), ("grid", self.grid)):
+                for k in keys:
+                    if k in PHYSICAL_KEYS:
+                        raise ParameterError(
+                            f"{where}.{k} is a rigid-body setting; engine {self.engine!r} is "
+                            f"not a rigid-body engine (its settings: "
+                            f"{', '.join(k for k in SETTINGS if k not in PHYSICAL_KEYS)})"
+                        )
         if "tau_hat" in self.metrics and self.duration < STCC_MIN_DURATION:
             raise ParameterError(
                 f"duration must be >= {STCC_MIN_DURATION:g} s for the tau_hat metric "
@@ -115,6 +132,12 @@ class Study:
             raise ParameterError(
                 f"study file {path}: unknown table(s) {', '.join(sorted(unknown))}; "
                 "allowed: [study], [fixed], [grid]"
+            )
+        both = set(d.get("fixed", {})) & set(d.get("grid", {}))
+        if both:
+            raise ParameterError(
+                f"study file {path}: {', '.join(sorted(both))} both in [fixed] and [grid]; "
+                "a setting is fixed or swept, not both"
             )
         s = d.get("study", {})
         allowed = [f.name for f in dataclasses.fields(cls) if f.name not in ("fixed", "grid")]
@@ -187,6 +210,11 @@ def parse_grid(items: list[str], option: str = "--grid") -> dict[str, list]:
         values = [_value(v) for v in vals.split(",") if v.strip()]
         if not values:
             raise ParameterError(f"{option} {k.strip()}: no values given in {item!r}")
+        if k.strip() in grid:
+            raise ParameterError(
+                f"{option} {k.strip()} is given twice; give every value in one {option} "
+                f"{k.strip()}=V1,V2,..."
+            )
         grid[k.strip()] = values
     return grid
 
