@@ -13,6 +13,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -44,12 +45,52 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action) or help_text
 
 
+#: a negative number is a value, not an option: -1, -1.5, -.5, -1e9, -2.5E-3, -inf, -nan
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
+
+
 class CLIParser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are one line ``cip-validate: error: ...``, exit 2."""
+    """An ArgumentParser whose errors are one line ``cip-validate: error: ...``, exit 2.
+
+    Also refuses an option given twice (the last would silently win) unless it is
+    meant to repeat (``action="append"``), and reads negative numbers such as
+    ``-1e9`` as values, not as options.
+    """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        if args is not None:
+            self._refuse_repeats(list(args))
+        return super().parse_known_args(args, namespace)
+
+    def _refuse_repeats(self, args: list[str]) -> None:
+        """A usage error when one of this parser's options occurs twice in ``args``."""
+        commands: set[str] = set()
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                commands.update(action.choices)
+        repeatable = (argparse._AppendAction, argparse._CountAction, argparse._HelpAction,
+                      argparse._VersionAction)  # fmt: skip
+        seen: dict[str, str] = {}
+        for i, token in enumerate(args):
+            if token == "--" or token in commands:  # the rest belongs to a subcommand
+                return
+            option, eq, value = token.partition("=")
+            action = self._option_string_actions.get(option)
+            if action is None or isinstance(action, repeatable):
+                continue
+            if not eq and action.nargs != 0:
+                value = " ".join(args[i + 1 : i + 1 + (action.nargs or 1)]
+                                 if isinstance(action.nargs, int) or action.nargs is None
+                                 else args[i + 1 : i + 2])  # fmt: skip
+            if action.dest in seen:
+                both = f" ({seen[action.dest]!r}, then {value!r})" if value else ""
+                usage_error(f"{option} is given twice{both}; give it once")
+            seen[action.dest] = value
 
     def error(self, message: str) -> NoReturn:
         usage_error(message)
