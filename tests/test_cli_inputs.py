@@ -6,6 +6,8 @@ work); hypothesis draws bad counts and non-numbers for the typed options.
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -174,3 +176,44 @@ def test_every_help_works_and_shows_defaults(capsys):
         assert "%" not in out.replace("95 %", ""), out  # no unformatted % left
     out_sim = (main(["simulate", "--help"]), capsys.readouterr().out)[1]
     assert "(default: 0.001)" in out_sim and "time step (s)" in out_sim
+
+
+def _every_parser():
+    """(command words, parser) for every command and subcommand of the CLI."""
+    import argparse
+
+    todo = [([], build_parser())]
+    while todo:
+        words, parser = todo.pop()
+        yield words, parser
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [([*words, name], sp) for name, sp in a.choices.items()]
+
+
+def test_every_command_has_a_description_and_every_option_a_help(capsys):
+    import argparse
+
+    for words, parser in _every_parser():
+        if words:
+            assert parser.description, words
+        for a in parser._actions:
+            if isinstance(a, argparse._HelpAction | argparse._SubParsersAction):
+                continue
+            assert a.help, (words, a.option_strings or a.dest)
+        if words:
+            assert main([*words, "--help"]) == 0
+            out = capsys.readouterr().out
+            assert "(default: None)" not in out and "(default: False)" not in out, words
+            flat = " ".join(out.split())
+            assert not re.search(r"\(default: [^()]*\) \(default: ", flat), words  # said twice
+            assert "(default: (" not in out, words  # a tuple default shown as Python
+
+
+def test_every_profile_is_named_in_the_run_help(capsys):
+    from validation.profiles import PROFILES
+
+    assert main(["run", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    for name in PROFILES:
+        assert f"{name} (" in out, name

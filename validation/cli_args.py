@@ -42,6 +42,8 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         help_text = action.help or ""
         if action.default is None and "%(default)" not in help_text:
             return help_text  # "(default: None)" says nothing; the text says what happens
+        if isinstance(action, argparse._StoreTrueAction):
+            return help_text  # a flag: "(default: False)" says nothing either
         return super()._get_help_string(action) or help_text
 
 

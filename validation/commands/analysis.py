@@ -239,14 +239,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--beta-grid",
         type=grid,
-        default=(0.0, 80.0, 81),
+        default="0:80:81",
         metavar="LOW:HIGH:N",
         help="gains of the region plot (1/s^2; N >= 2 points)",
     )
     p.add_argument(
         "--tau-grid",
         type=grid,
-        default=(0.01, 0.3, 59),
+        default="0.01:0.3:59",
         metavar="LOW:HIGH:N",
         help="delays of the region plot (s; N >= 2 points)",
     )

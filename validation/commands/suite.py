@@ -169,7 +169,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=profiles,
         default="quick",
         help="run size: smoke (seconds, every code path), quick (every check, "
-        "minutes), paper (the paper's counts and durations)",
+        "minutes), paper (the paper's counts and durations), robustness (paper, plus the "
+        "full grid of estimator choices)",
     )
     p.add_argument(
         "--out",
