@@ -57,6 +57,8 @@ def render_frames(
     import mujoco
 
     data = mujoco.MjData(mj_model)
+    g = mj_model.vis.global_  # the offscreen buffer must hold the frame
+    g.offwidth, g.offheight = max(g.offwidth, width), max(g.offheight, height)
     mj_model.vis.headlight.ambient[:] = 0.5
     mj_model.vis.headlight.diffuse[:] = 0.7
     n_c = positions.shape[1]
