@@ -243,12 +243,27 @@ def add_json_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
-def params_from_args(a: argparse.Namespace, beta: float | None = None) -> BalanceParams:
-    """The :class:`BalanceParams` of the parsed options (checked by BalanceParams)."""
-    return BalanceParams(
-        beta=a.beta if beta is None else beta, alpha=a.alpha, gamma=a.gamma, nu=a.nu,
-        tau=a.tau, dt=a.dt,
-    )  # fmt: skip
+def params_from_args(
+    a: argparse.Namespace, beta: float | None = None, beta_option: str = "--beta"
+) -> BalanceParams:
+    """The :class:`BalanceParams` of the parsed options (checked by BalanceParams).
+
+    An error names the option as typed (``--tau``), or ``beta_option`` when ``beta`` is
+    given (e.g. ``--beta-range``).
+    """
+    try:
+        return BalanceParams(
+            beta=a.beta if beta is None else beta, alpha=a.alpha, gamma=a.gamma, nu=a.nu,
+            tau=a.tau, dt=a.dt,
+        )  # fmt: skip
+    except ParameterError as exc:
+        text = str(exc)
+        name = text.split(" ", 1)[0]
+        if name == "beta" and beta is not None:
+            raise ParameterError(f"{beta_option}: {text}") from None
+        if name in ("beta", "alpha", "gamma", "nu", "tau", "dt"):
+            raise ParameterError(f"--{text}") from None
+        raise
 
 
 def dump(obj: Any) -> str:

@@ -108,8 +108,8 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
     lo, hi = a.beta_range
     if not lo < hi:
         raise ParameterError(f"--beta-range needs LOW < HIGH (1/s^2), got {lo:g} {hi:g}")
-    params = params_from_args(a, beta=lo)
-    params_from_args(a, beta=hi)
+    params = params_from_args(a, beta=lo, beta_option="--beta-range")
+    params_from_args(a, beta=hi, beta_option="--beta-range")
     check_lyapunov_duration(a, params.tau, params.dt)
     check_work("--duration", a.realizations, a.duration, params.dt, runs=a.gains, force=a.force)
     res = critical_gain(
