@@ -1,10 +1,12 @@
 """Atomic output files: every file the suite writes appears whole or not at all.
 
 One job.  :func:`atomic_path` hands out a temporary name in the target's own
-directory (``.<stem>.tmp<pid><suffix>``: same file system, same extension so
-that writers choosing a format from it keep working); when the caller has
-written it, the file is flushed to disk (``fsync``) and renamed over the final
-name (``os.replace``, atomic on POSIX); the directory entry is synced too.  On
+directory (``.<name>.tmp<pid>``: same file system, and a name no ``*.json`` or
+``*.png`` pattern matches, so a file left by a killed process is never taken
+for a result; writers that choose a format from the extension are told it, or
+ask for ``keep_suffix``); when the caller has written it, the file is flushed
+to disk (``fsync``) and renamed over the final name (``os.replace``, atomic on
+POSIX); the directory entry is synced too.  On
 any error the temporary file is removed, nothing appears under the final name
 (an older file there is left as it was), and an :class:`OSError` of the write
 (full disk, read-only file system, quota) becomes one :class:`WriteError`
@@ -55,8 +57,11 @@ def _fsync_dir(directory: Path) -> None:
 
 
 @contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
+def atomic_path(path: str | Path, keep_suffix: bool = False) -> Iterator[Path]:
     """Yield a temporary path to write; on success it is synced and renamed to ``path``.
+
+    ``keep_suffix`` ends the temporary name with ``path``'s extension
+    (``.<stem>.tmp<pid><suffix>``) for a writer that cannot be told the format.
 
     Raises
     ------
@@ -65,7 +70,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         temporary file is removed and ``path`` is untouched.
     """
     final = Path(path)
-    tmp = final.with_name(f".{final.stem}.tmp{os.getpid()}{final.suffix}")
+    tail = f".tmp{os.getpid()}"
+    name = f".{final.stem}{tail}{final.suffix}" if keep_suffix else f".{final.name}{tail}"
+    tmp = final.with_name(name)
     try:
         yield tmp
         fd = os.open(tmp, os.O_RDONLY)

@@ -109,8 +109,8 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> Path:
         from PIL import Image
 
         images = [Image.fromarray(f) for f in frames]
-        write_with(path, lambda tmp: images[0].save(tmp, save_all=True, append_images=images[1:],
-                   duration=round(1000 / fps), loop=0))  # fmt: skip
+        write_with(path, lambda tmp: images[0].save(tmp, format="GIF", save_all=True,
+                   append_images=images[1:], duration=round(1000 / fps), loop=0))  # fmt: skip
         return path
     import matplotlib.pyplot as plt
     from matplotlib.animation import FFMpegWriter
@@ -121,7 +121,7 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> Path:
     ax.axis("off")
     im = ax.imshow(frames[0])
     writer = FFMpegWriter(fps=fps)
-    with atomic_path(path) as tmp, writer.saving(fig, str(tmp), dpi=100):
+    with atomic_path(path, keep_suffix=True) as tmp, writer.saving(fig, str(tmp), dpi=100):
         for f in frames:
             im.set_data(f)
             writer.grab_frame()

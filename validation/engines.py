@@ -345,7 +345,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path | None:
     ax.set_ylabel("trajectory distance to reduced at 1e-6 m")
     ax.set_title("speed against accuracy")
     fig.tight_layout()
-    write_with(path, lambda tmp: fig.savefig(tmp, dpi=120))
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=120, format=Path(path).suffix[1:]))
     plt.close(fig)
     return path
 

@@ -77,7 +77,7 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
     n = ds.sizes.get("realization", 1)
     ax.set_title(f"mean over realisations, 95% band ({n} realisations)", fontsize=8)
     ax.legend(fontsize=7)
-    write_with(path, lambda tmp: fig.savefig(tmp, dpi=110))
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:]))
     plt.close(fig)
     return path
 
