@@ -138,7 +138,8 @@ def test_study_validation_names_the_problem(tmp_path):
 
 
 def test_evaluate_point_is_pure():
-    study = small_study(engine="reduced", metrics=("rms", "lambda1"))
+    study = small_study(engine="reduced", metrics=("rms", "lambda1"),
+                        grid={"amplitude": [0.001, 0.1]})  # fmt: skip
     p = study.points()[0]
     assert evaluate_point(study.as_dict(), p) == evaluate_point(study.as_dict(), p)
 
