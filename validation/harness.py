@@ -274,6 +274,9 @@ def run_validation(
     except KeyboardInterrupt:
         bar.close()
         raise RunInterrupted(list(done), out_dir) from None
+    except BaseException:
+        bar.close()  # an error message then starts on its own line
+        raise
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
