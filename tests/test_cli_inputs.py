@@ -114,6 +114,11 @@ CASES = [
         "sweep --engine reduced --grid beta=20 --set rod_length=2 --metrics rms",
         ["--set rod_length", "rigid-body"],
     ),
+    (
+        "sweep --engine mujoco --grid integrator=RK4,Bogus --metrics rms",
+        ["--grid integrator", "Euler"],
+    ),
+    ("sweep --engine reduced --grid beta=20 --set tau=-1 --metrics rms", ["--set tau", "> 0"]),
     # checks that can be made before work, naming the option as typed
     ("lyapunov --beta 20 --duration 0.1", ["--duration", ">= 0.112 s"]),
     ("critical-gain --beta-range 19 21 --duration 0.05", ["--duration", ">= 0.112 s"]),

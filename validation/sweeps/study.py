@@ -114,7 +114,14 @@ class Study:
             )
         # validate every point's parameters up front: a bad value fails before any work
         for point in self.points():
-            point_params(self, point)
+            try:
+                point_params(self, point)
+            except ParameterError as exc:  # name the setting: grid.integrator, fixed.tau
+                k = str(exc).split(" ", 1)[0]
+                where = "grid" if k in self.grid else "fixed" if k in self.fixed else None
+                if where is None:
+                    raise
+                raise ParameterError(f"{where}.{k}: {exc}") from None
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Study:
