@@ -18,6 +18,7 @@ import json
 import time
 from pathlib import Path
 
+from cipcore.atomic import write_text
 from validation import paper
 from validation.profiles import PROFILES
 from validation.report import jsonable, paper_section
@@ -58,8 +59,8 @@ def main() -> None:
                "timings_s": timings}  # fmt: skip
     md = "\n".join([f"# Paper claims, profile {profile.name} (seed {profile.seed}), "
                     f"overrides {json.dumps(over)}", *paper_section(results), ""])  # fmt: skip
-    (out / "report.md").write_text(md)
-    (out / "results.json").write_text(json.dumps(jsonable(results), indent=1))
+    write_text(out / "report.md", md)
+    write_text(out / "results.json", json.dumps(jsonable(results), indent=1))
     print(md)
     print({k: round(v, 1) for k, v in timings.items()})
 

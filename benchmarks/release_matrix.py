@@ -115,7 +115,9 @@ def main(argv: list[str] | None = None) -> int:
                 "stderr_tail": rr.stderr[-300:] if status == "error" else "",
             }
         )
-    (root / "release_matrix.json").write_text(json.dumps(rows, indent=1))
+    from cipcore.atomic import write_text
+
+    write_text(root / "release_matrix.json", json.dumps(rows, indent=1))
     return 0
 
 

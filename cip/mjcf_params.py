@@ -50,13 +50,19 @@ def shipped_model_path(model: str) -> Path:
 def load_model_file(path: str | Path) -> mujoco.MjModel:
     """Compile an MJCF file; a one-line error if it is missing or does not compile."""
     p = Path(path)
+    if p.is_dir():
+        raise ParameterError(f"--mjcf: {str(path)!r} is a directory, expected an MJCF (.xml) file")
     if not p.is_file():
         raise ParameterError(f"--mjcf: no such file {str(path)!r}")
     try:
         return mujoco.MjModel.from_xml_path(str(p))
     except ValueError as exc:
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else "compile error"
-        raise ParameterError(f"--mjcf: {str(path)!r} does not compile: {first}") from None
+        # MuJoCo's message is "XML parse error N:" then the details on the next lines
+        lines = [ln.strip().rstrip(":") for ln in str(exc).strip().splitlines() if ln.strip()]
+        why = ": ".join(lines)
+        raise ParameterError(
+            f"--mjcf: {str(path)!r} does not compile: {why or 'compile error'}"
+        ) from None
 
 
 @dataclass(frozen=True)
@@ -235,7 +241,12 @@ def model_files(paths: list[str] | None, dt: float = 1e-3) -> dict[str, str]:
     """
     out: dict[str, str] = {}
     for path in paths or []:
-        mp = read_mapping(load_model_file(path))
+        try:
+            mp = read_mapping(load_model_file(path))
+        except ParameterError as exc:
+            if str(exc).startswith("--mjcf"):
+                raise
+            raise ParameterError(f"--mjcf: {str(path)!r}: {exc}") from None
         if abs(mp.timestep - dt) > 1e-12 * dt:
             raise ParameterError(
                 f"--mjcf: {str(path)!r} steps at timestep {mp.timestep:g} s, the controller "

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import mujoco
 
+from cipcore.atomic import write_text
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
 
@@ -302,7 +303,7 @@ def write_models(directory: Path = MODEL_DIR) -> list[Path]:
     out = []
     for model in MODEL_NAMES:
         path = directory / f"cip_{model}.xml"
-        path.write_text(mjcf(model))
+        write_text(path, mjcf(model))
         out.append(path)
     return out
 

@@ -41,6 +41,15 @@ class LyapunovResult:
         return d
 
 
+def min_lyapunov_duration(tau: float, dt: float) -> float:
+    """Shortest duration (s, whole steps of ``dt``) leaving one renormalisation interval
+    tau after the default transient min(10 s, duration / 10)."""
+    import math
+
+    shortest = tau / 0.9 if tau < 90.0 else tau + 10.0
+    return round(math.ceil(shortest / dt - 1e-9) * dt, 12)
+
+
 def check_transient(transient: float | None, duration: float) -> float:
     """The transient to discard (s): default min(10 s, duration / 10), in [0, duration)."""
     t = min(10.0, duration / 10) if transient is None else float(transient)

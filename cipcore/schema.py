@@ -81,9 +81,13 @@ class Trajectory:
 
     def save_npz(self, path: str | Path) -> Path:
         """Write ``time``, each field and ``attrs`` (as JSON) to a ``.npz`` file."""
+        from .atomic import atomic_path
+
         path = Path(path)
         arrays = {"time": self.time, **self.data}
-        np.savez(path, **arrays, attrs=np.array(json.dumps(self.attrs, default=_jsonable)))
+        attrs = np.array(json.dumps(self.attrs, default=_jsonable))
+        with atomic_path(path) as tmp, open(tmp, "wb") as f:  # a file object: no ".npz" added
+            np.savez(f, **arrays, attrs=attrs)
         return path
 
     @classmethod

@@ -6,7 +6,11 @@ work); hypothesis draws bad counts and non-numbers for the typed options.
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
+import xarray as xr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -39,7 +43,7 @@ CASES = [
     ("stability --beta 30 --tau-grid 0:0.3:5", ["--tau-grid", "> 0"]),
     ("stability --beta 30 --roots 0", ["--roots", ">= 1"]),
     ("stability --beta 30 --plot {d}/x.gif", ["--plot", ".png"]),
-    ("sweep --engine reduced --grid beta=abc --metrics rms --out {d}/s", ["grid.beta", "number"]),
+    ("sweep --engine reduced --grid beta=abc --metrics rms --out {d}/s", ["--grid beta", "number"]),
     ("sweep --engine reduced --grid beta= --metrics rms --out {d}/s", ["--grid", "no values"]),
     ("sweep --engine reduced --grid beta --metrics rms --out {d}/s", ["--grid", "NAME="]),
     ("sweep --engine reduced --grid foo=1,2 --metrics rms --out {d}/s", ["foo", "allowed"]),
@@ -85,6 +89,52 @@ CASES = [
     ("render --beta 20 --realization -1 --out {d}/run.gif", ["--realization", ">= 0"]),
     ("render --beta 20 --out {file}/run.gif", ["--out", "is not a directory"]),
     ("nosuchcommand", ["invalid choice"]),
+    # options that contradict or repeat
+    ("simulate --beta 20 --out {d}/a.npz --out {d}/b.npz", ["--out", "given twice"]),
+    ("lyapunov --beta 20 --beta 21", ["--beta", "given twice"]),
+    ("run --profile smoke --profile quick --out {d}/o", ["--profile", "given twice"]),
+    (
+        "sweep --engine reduced --grid beta=20,21 --grid beta=22 --metrics rms",
+        ["--grid beta", "twice"],
+    ),
+    (
+        "sweep --engine reduced --grid beta=20,21 --set beta=30 --metrics rms",
+        ["--grid beta", "--set beta"],
+    ),
+    ("sweep --engine reduced --grid beta=20,20 --metrics rms", ["--grid beta", "twice"]),
+    (
+        "sweep --engine reduced --grid beta=20 --set gamma=1,2 --metrics rms",
+        ["--set gamma", "one value"],
+    ),
+    (
+        "sweep --engine reduced --grid integrator=RK4,Bogus --metrics rms",
+        ["--grid integrator", "rigid-body"],
+    ),
+    (
+        "sweep --engine reduced --grid beta=20 --set rod_length=2 --metrics rms",
+        ["--set rod_length", "rigid-body"],
+    ),
+    (
+        "sweep --engine mujoco --grid integrator=RK4,Bogus --metrics rms",
+        ["--grid integrator", "Euler"],
+    ),
+    ("sweep --engine reduced --grid beta=20 --set tau=-1 --metrics rms", ["--set tau", "> 0"]),
+    # checks that can be made before work, naming the option as typed
+    ("lyapunov --beta 20 --duration 0.1", ["--duration", ">= 0.112 s"]),
+    ("critical-gain --beta-range 19 21 --duration 0.05", ["--duration", ">= 0.112 s"]),
+    ("lyapunov --beta 20 --duration 1.0005", ["--duration", "whole number of time steps"]),
+    ("render --beta 20 --duration 1e7 --out {d}/r.gif", ["--duration", "--fps", "GiB"]),
+    ("render --beta 20 --width 100000 --out {d}/r.gif", ["--width", "[1, 4096]"]),
+    ("selftest --realizations 0", ["--realizations", ">= 1"]),
+    ("selftest --seed -1", ["--seed", ">= 0"]),
+    ("engines --seed -3", ["--seed", ">= 0"]),
+    # a user's damaged input files
+    ("run --profile smoke --mjcf {d} --out {d}/o", ["--mjcf", "is a directory"]),
+    (
+        "run --profile smoke --mjcf {xml} --out {d}/o",
+        ["--mjcf", "XML parse error", "Line number=3"],
+    ),
+    ("sweep-plot {nc} --metric rms --x beta --out {d}/p.png", ["dataset", "damaged"]),
 ]
 
 
@@ -96,7 +146,13 @@ def places(tmp_path):
     d.mkdir()
     bad = tmp_path / "bad_study.toml"
     bad.write_text(BAD_STUDY)
-    return {"file": str(f), "d": str(d), "bad": str(bad)}
+    xml = tmp_path / "bad.xml"
+    xml.write_text("<mujoco>\n<worldbody>\n<body>\n</mujoco>\n")  # <body> never closed
+    nc = tmp_path / "sweep.nc"
+    xr.Dataset({"rms": (("beta",), [1.0, 2.0])}, coords={"beta": [20.0, 21.0]},
+               attrs={"study": "{}", "fingerprint": "0"}).to_netcdf(nc, engine="scipy")  # fmt: skip
+    nc.write_bytes(nc.read_bytes()[:-20])  # a sweep dataset cut short
+    return {"file": str(f), "d": str(d), "bad": str(bad), "xml": str(xml), "nc": str(nc)}
 
 
 def run(capsys, argv: list[str]) -> tuple[int, str, str]:
@@ -174,3 +230,122 @@ def test_every_help_works_and_shows_defaults(capsys):
         assert "%" not in out.replace("95 %", ""), out  # no unformatted % left
     out_sim = (main(["simulate", "--help"]), capsys.readouterr().out)[1]
     assert "(default: 0.001)" in out_sim and "time step (s)" in out_sim
+
+
+def _every_parser():
+    """(command words, parser) for every command and subcommand of the CLI."""
+    import argparse
+
+    todo = [([], build_parser())]
+    while todo:
+        words, parser = todo.pop()
+        yield words, parser
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [([*words, name], sp) for name, sp in a.choices.items()]
+
+
+def test_every_command_has_a_description_and_every_option_a_help(capsys):
+    import argparse
+
+    for words, parser in _every_parser():
+        if words:
+            assert parser.description, words
+        for a in parser._actions:
+            if isinstance(a, argparse._HelpAction | argparse._SubParsersAction):
+                continue
+            assert a.help, (words, a.option_strings or a.dest)
+        if words:
+            assert main([*words, "--help"]) == 0
+            out = capsys.readouterr().out
+            assert "(default: None)" not in out and "(default: False)" not in out, words
+            flat = " ".join(out.split())
+            assert not re.search(r"\(default: [^()]*\) \(default: ", flat), words  # said twice
+            assert "(default: (" not in out, words  # a tuple default shown as Python
+
+
+def test_every_profile_is_named_in_the_run_help(capsys):
+    from validation.profiles import PROFILES
+
+    assert main(["run", "--help"]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    for name in PROFILES:
+        assert f"{name} (" in out, name
+
+
+def test_negative_numbers_are_values_where_valid():
+    a = build_parser().parse_args(
+        ["critical-gain", "--beta-range", "19", "21", "--target", "-1e9", "--alpha", "-2.5E-3"]
+    )
+    assert a.target == -1e9 and a.alpha == -2.5e-3
+
+
+SINGLE_OPTIONS = [("--out", "{d}/r.npz"), ("--beta", "20"), ("--duration", "1"),
+                  ("--realizations", "2"), ("--seed", "3"), ("--model", "single"),
+                  ("--engine", "reduced"), ("--amplitude", "-0.01"), ("--json", None)]  # fmt: skip
+
+
+@settings(
+    max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    picks=st.lists(st.sampled_from(SINGLE_OPTIONS), min_size=1, max_size=5, unique=True),
+    repeated=st.integers(min_value=0, max_value=4),
+    where=st.integers(min_value=0, max_value=5),
+)
+def test_any_single_option_given_twice_is_refused_before_work(
+    capsys, places, picks, repeated, where
+):
+    option, value = picks[repeated % len(picks)]
+    argv = ["simulate"]
+    for o, v in picks:
+        argv += [o] + ([v.format(**places)] if v else [])
+    if "--beta" not in argv:
+        argv += ["--beta", "20"]
+    extra = [option] + ([value.format(**places)] if value else [])
+    pos = 1 + 2 * min(where, (len(argv) - 1) // 2)  # between two options
+    argv = argv[:pos] + extra + argv[pos:]
+    code, out, err = run(capsys, argv)
+    assert_one_line_usage_error(code, err, [option, "given twice"])
+    assert out == ""
+    assert not list(Path(places["d"]).iterdir())  # nothing written
+
+
+GRID_KEYS = ["beta", "gamma", "nu", "tau", "amplitude"]
+VALUES = {"beta": [20, 21, 22], "gamma": [1.0, 1.5], "nu": [0.5, 0.6], "tau": [0.1, 0.11],
+          "amplitude": [0.001, -0.002]}  # fmt: skip
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    grids=st.lists(st.sampled_from(GRID_KEYS), min_size=1, max_size=3),
+    sets=st.lists(st.sampled_from(GRID_KEYS), max_size=3),
+    dup_value=st.booleans(),
+)
+def test_grid_and_set_combinations_are_refused_exactly_when_they_contradict(grids, sets, dup_value):
+    """--grid/--set: refused iff a name repeats, is both swept and fixed, or a value repeats."""
+    import argparse
+
+    from cipcore.params import ParameterError
+    from validation.commands.sweeping import study_from_args
+
+    def values(k: str, dup: bool) -> str:
+        v = VALUES[k] + ([VALUES[k][0]] if dup else [])
+        return ",".join(map(str, v))
+
+    a = argparse.Namespace(
+        study=None, model="single", engine="reduced", realizations=2, duration=1.0, seed=0,
+        metrics="rms", grid=[f"{k}={values(k, dup_value and i == 0)}" for i, k in
+                             enumerate(grids)],
+        set=[f"{k}={VALUES[k][0]}" for k in sets], compare=None, target_lambda1=None,
+    )  # fmt: skip
+    bad = (len(set(grids)) < len(grids) or len(set(sets)) < len(sets)
+           or bool(set(grids) & set(sets)) or dup_value)  # fmt: skip
+    if bad:
+        with pytest.raises(ParameterError) as info:
+            study_from_args(a)
+        msg = str(info.value)
+        assert "\n" not in msg and ("--grid" in msg or "--set" in msg), msg
+    else:
+        study = study_from_args(a)
+        assert set(study.grid) == set(grids) and set(study.fixed) == set(sets)

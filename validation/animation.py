@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cipcore.atomic import atomic_path, write_with
 from cipcore.params import ParameterError
 from cipcore.schema import Trajectory
 
@@ -56,6 +57,8 @@ def render_frames(
     import mujoco
 
     data = mujoco.MjData(mj_model)
+    g = mj_model.vis.global_  # the offscreen buffer must hold the frame
+    g.offwidth, g.offheight = max(g.offwidth, width), max(g.offheight, height)
     mj_model.vis.headlight.ambient[:] = 0.5
     mj_model.vis.headlight.diffuse[:] = 0.7
     n_c = positions.shape[1]
@@ -106,8 +109,8 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> Path:
         from PIL import Image
 
         images = [Image.fromarray(f) for f in frames]
-        images[0].save(path, save_all=True, append_images=images[1:],
-                       duration=round(1000 / fps), loop=0)  # fmt: skip
+        write_with(path, lambda tmp: images[0].save(tmp, format="GIF", save_all=True,
+                   append_images=images[1:], duration=round(1000 / fps), loop=0))  # fmt: skip
         return path
     import matplotlib.pyplot as plt
     from matplotlib.animation import FFMpegWriter
@@ -118,7 +121,7 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> Path:
     ax.axis("off")
     im = ax.imshow(frames[0])
     writer = FFMpegWriter(fps=fps)
-    with writer.saving(fig, str(path), dpi=100):
+    with atomic_path(path, keep_suffix=True) as tmp, writer.saving(fig, str(tmp), dpi=100):
         for f in frames:
             im.set_data(f)
             writer.grab_frame()

@@ -5,7 +5,10 @@ print.  One module per command group (:mod:`validation.commands`), shared
 argument helpers in :mod:`validation.cli_args`.  Exit status: 0 when no check
 fails, 1 when a validation check fails, 2 for a usage error (one line
 ``cip-validate: error: ...`` naming the parameter and its allowed range),
-130 / 143 after SIGINT / SIGTERM (finished work kept).
+130 / 143 after SIGINT / SIGTERM (finished work kept).  An output that cannot be
+written (full disk, read-only file system, quota) is also exit 2, one line naming
+the file; outputs are written atomically (:mod:`cipcore.atomic`), so nothing is
+left under its name, and the line says where finished work was kept or what was lost.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
+from cipcore.atomic import WriteError
 from cipcore.params import ParameterError
 
 from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
@@ -70,6 +74,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_SIGINT
+    except WriteError as exc:
+        print(f"{PROG}: error: {' '.join(exc.message().split())}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # a directory or lock file that could not be made
+        where = f"{exc.filename!r}: " if exc.filename else ""
+        print(f"{PROG}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ import argparse
 import json
 import math
 import os
+import re
 import signal
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -20,7 +21,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cipcore.models import MODEL_NAMES, get_model
-from cipcore.params import PAPER, BalanceParams, ParameterError
+from cipcore.params import PAPER, BalanceParams, ParameterError, whole_steps
 from cipcore.registry import REFERENCE, engine_names
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
@@ -41,15 +42,57 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         help_text = action.help or ""
         if action.default is None and "%(default)" not in help_text:
             return help_text  # "(default: None)" says nothing; the text says what happens
+        if isinstance(action, argparse._StoreTrueAction):
+            return help_text  # a flag: "(default: False)" says nothing either
         return super()._get_help_string(action) or help_text
 
 
+#: a negative number is a value, not an option: -1, -1.5, -.5, -1e9, -2.5E-3, -inf, -nan
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
+
+
 class CLIParser(argparse.ArgumentParser):
-    """An ArgumentParser whose errors are one line ``cip-validate: error: ...``, exit 2."""
+    """An ArgumentParser whose errors are one line ``cip-validate: error: ...``, exit 2.
+
+    Also refuses an option given twice (the last would silently win) unless it is
+    meant to repeat (``action="append"``), and reads negative numbers such as
+    ``-1e9`` as values, not as options.
+    """
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        if args is not None:
+            self._refuse_repeats(list(args))
+        return super().parse_known_args(args, namespace)
+
+    def _refuse_repeats(self, args: list[str]) -> None:
+        """A usage error when one of this parser's options occurs twice in ``args``."""
+        commands: set[str] = set()
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                commands.update(action.choices)
+        repeatable = (argparse._AppendAction, argparse._CountAction, argparse._HelpAction,
+                      argparse._VersionAction)  # fmt: skip
+        seen: dict[str, str] = {}
+        for i, token in enumerate(args):
+            if token == "--" or token in commands:  # the rest belongs to a subcommand
+                return
+            option, eq, value = token.partition("=")
+            action = self._option_string_actions.get(option)
+            if action is None or isinstance(action, repeatable):
+                continue
+            if not eq and action.nargs != 0:
+                value = " ".join(args[i + 1 : i + 1 + (action.nargs or 1)]
+                                 if isinstance(action.nargs, int) or action.nargs is None
+                                 else args[i + 1 : i + 2])  # fmt: skip
+            if action.dest in seen:
+                both = f" ({seen[action.dest]!r}, then {value!r})" if value else ""
+                usage_error(f"{option} is given twice{both}; give it once")
+            seen[action.dest] = value
 
     def error(self, message: str) -> NoReturn:
         usage_error(message)
@@ -200,12 +243,27 @@ def add_json_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
 
-def params_from_args(a: argparse.Namespace, beta: float | None = None) -> BalanceParams:
-    """The :class:`BalanceParams` of the parsed options (checked by BalanceParams)."""
-    return BalanceParams(
-        beta=a.beta if beta is None else beta, alpha=a.alpha, gamma=a.gamma, nu=a.nu,
-        tau=a.tau, dt=a.dt,
-    )  # fmt: skip
+def params_from_args(
+    a: argparse.Namespace, beta: float | None = None, beta_option: str = "--beta"
+) -> BalanceParams:
+    """The :class:`BalanceParams` of the parsed options (checked by BalanceParams).
+
+    An error names the option as typed (``--tau``), or ``beta_option`` when ``beta`` is
+    given (e.g. ``--beta-range``).
+    """
+    try:
+        return BalanceParams(
+            beta=a.beta if beta is None else beta, alpha=a.alpha, gamma=a.gamma, nu=a.nu,
+            tau=a.tau, dt=a.dt,
+        )  # fmt: skip
+    except ParameterError as exc:
+        text = str(exc)
+        name = text.split(" ", 1)[0]
+        if name == "beta" and beta is not None:
+            raise ParameterError(f"{beta_option}: {text}") from None
+        if name in ("beta", "alpha", "gamma", "nu", "tau", "dt"):
+            raise ParameterError(f"--{text}") from None
+        raise
 
 
 def dump(obj: Any) -> str:
@@ -229,6 +287,7 @@ def check_work(
 
     ``runs`` multiplies (e.g. gains of a critical-gain search, grid points of a sweep).
     """
+    whole_steps(option, duration, dt)  # before any work: the engines step whole dt
     work = float(realizations) * runs * duration / dt
     if work > MAX_WORK and not force:
         raise ParameterError(

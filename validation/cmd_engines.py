@@ -8,7 +8,7 @@ import sys
 
 from cipcore.registry import engine_names
 
-from .cli_args import check_out_dir
+from .cli_args import add_threads_arg, check_out_dir, nonnegative_int
 from .engines import ENGINE_PROFILES, compare_engines, parse_engines, write_engine_reports
 
 EXIT_OK, EXIT_FAIL = 0, 1
@@ -50,16 +50,22 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "engines",
         help="validate every registered engine against the reduced model, one table",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Run every registered engine (or --engines) on the same seeds as the "
+        "reduced reference: trajectory distance (relative L2), lambda1 and throughput "
+        "(realisation-steps/s) per engine, in DIR/report.md and report.html; an engine not "
+        "installed here is skipped with the reason.",
     )
     registered = ", ".join(engine_names())
     p.add_argument("--engines", metavar="A,B,...",
                    help=f"engines to validate (default: all registered: {registered})")  # fmt: skip
     p.add_argument("--profile", choices=tuple(ENGINE_PROFILES), default="quick",
-                   help="sizes of the checks")  # fmt: skip
-    p.add_argument("--seed", type=int, default=0, help="root seed of every noise draw")
-    p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
-    p.add_argument("--out", default="cip-engines-out", help="output directory")
+                   help="sizes of the checks: smoke (seconds), quick (minutes), paper "
+                   "(the paper's run lengths)")  # fmt: skip
+    p.add_argument("--seed", type=nonnegative_int, default=0,
+                   help="root seed of every noise draw (integer >= 0)")  # fmt: skip
+    add_threads_arg(p)
+    p.add_argument("--out", default="cip-engines-out", metavar="DIR",
+                   help="output directory (created if absent; must be writable)")  # fmt: skip
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
-    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=cmd_engines)

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from cipcore.atomic import write_text, write_with
 from cipcore.models import MODEL_NAMES
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import REFERENCE, availability, check_engine_name, engine_names, get_engine
@@ -344,7 +345,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path | None:
     ax.set_ylabel("trajectory distance to reduced at 1e-6 m")
     ax.set_title("speed against accuracy")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=120, format=Path(path).suffix[1:]))
     plt.close(fig)
     return path
 
@@ -358,5 +359,5 @@ def write_engine_reports(results: dict[str, Any], out_dir: Path, figures: bool =
     md = markdown(results)
     if figures and speed_accuracy_figure(results, out_dir / "speed_accuracy.png"):
         md += "\n![speed against accuracy](speed_accuracy.png)\n"
-    (out_dir / "report.md").write_text(md)
-    (out_dir / "report.html").write_text(html_report(md, out_dir))
+    write_text(out_dir / "report.md", md)
+    write_text(out_dir / "report.html", html_report(md, out_dir))

@@ -27,6 +27,7 @@ import json
 import os
 import pickle
 import platform
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +36,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from cipcore.atomic import write_bytes
 from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper, plots
@@ -82,7 +84,30 @@ def compile_note() -> str | None:
             "it adds to the first stage's time)")  # fmt: skip
 
 
+def _file_digest(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (a model file edited in place changes the run key)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as exc:
+        raise ParameterError(f"--mjcf: cannot read {str(path)!r} ({exc.strerror})") from None
+
+
+#: the stages that run a user's model file (``--mjcf``): their saved records carry the
+#: files' content hashes and are recomputed when a file changed
+MODEL_FILE_STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan")
+
+
+def model_file_inputs(model_files: dict[str, str] | None) -> dict[str, list[str]]:
+    """{model: [path, SHA-256 of its content]} of the ``--mjcf`` files."""
+    return {k: [str(v), _file_digest(v)] for k, v in sorted((model_files or {}).items())}
+
+
 def _run_key(profile: Profile, figures: bool, model_files: dict[str, str] | None = None) -> str:
+    """Hash of what fixes every stage's numbers: profile, figures setting, versions.
+
+    The model files' paths are in it; their contents enter the records of the stages
+    that read them (:data:`MODEL_FILE_STAGES`), so editing one recomputes just those.
+    """
     key = {"profile": profile.as_dict(), "figures": figures, "versions": package_versions(),
            "model_files": {k: str(v) for k, v in (model_files or {}).items()}}  # fmt: skip
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
@@ -95,7 +120,7 @@ class _Stages:
         self.dir = out_dir / STAGE_DIR
         self.manifest = self.dir / "manifest.json"
         self.key = key
-        old = json.loads(self.manifest.read_text()) if self.manifest.is_file() else None
+        old = self._read_manifest() if resume and self.manifest.is_file() else None
         if resume and old is not None and old.get("key") != key:
             raise ParameterError(
                 f"--resume: {out_dir} holds stages of another profile, figures setting or "
@@ -107,26 +132,68 @@ class _Stages:
                 f.unlink()
             _atomic(self.manifest, json.dumps({"key": key}).encode())
 
+    def _read_manifest(self) -> dict | None:
+        """The manifest, or None (every stage recomputed, said on stderr) when damaged."""
+        try:
+            old = json.loads(self.manifest.read_text())
+        except (OSError, ValueError) as exc:
+            why = " ".join(str(exc).split())
+        else:
+            if isinstance(old, dict) and isinstance(old.get("key"), str):
+                return old
+            why = "no run key in it"
+        _note(f"--resume: {self.manifest} is damaged ({why}); every stage is recomputed")
+        return None
+
     def _path(self, name: str) -> Path:
         return self.dir / f"{STAGES.index(name)}-{name.replace(' ', '_')}.pkl"
 
-    def load(self, name: str) -> Any:
+    def load(self, name: str, inputs: dict | None = None) -> Any:
+        """The saved record of stage ``name`` if whole and made from ``inputs``, else None."""
         p = self._path(name)
         if not p.is_file():
             return None
         try:
-            return pickle.loads(p.read_bytes())
-        except Exception:  # a damaged file: recompute the stage
-            return None
+            saved = pickle.loads(p.read_bytes())
+        except Exception as exc:  # a damaged file (any unpickling error): recompute the stage
+            why = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+        else:
+            if not (isinstance(saved, dict) and {"value", "seconds"} <= set(saved)):
+                why = "not a stage record"
+            elif saved.get("inputs", {}) != (inputs or {}):
+                _note(
+                    f"--resume: stage {name!r} was computed from other model file contents "
+                    f"({_changed(saved.get('inputs', {}), inputs or {})}); it is recomputed"
+                )
+                return None
+            else:
+                missing = [f for f in saved["value"] if not (self.dir.parent / Path(f).name)
+                           .is_file()] if name == "figures" else []  # fmt: skip
+                if not missing:
+                    return saved
+                _note(
+                    f"--resume: {len(missing)} figure file(s) missing from "
+                    f"{self.dir.parent} ({Path(missing[0]).name}, ...); figures are redrawn"
+                )
+                return None
+        _note(f"--resume: stage {name!r} ({p}) is damaged ({why}); the stage is recomputed")
+        return None
 
     def save(self, name: str, value: Any) -> None:
         _atomic(self._path(name), pickle.dumps(value, protocol=pickle.HIGHEST_PROTOCOL))
 
 
+def _changed(old: dict, new: dict) -> str:
+    names = sorted({k for k in {*old, *new} if old.get(k) != new.get(k)})
+    return ", ".join(f"{k}: {(new.get(k) or old.get(k))[0]}" for k in names)
+
+
+def _note(text: str) -> None:
+    tqdm.write(f"cip-validate: {text}", file=sys.stderr)
+
+
 def _atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    write_bytes(path, data)
 
 
 def run_validation(
@@ -149,6 +216,7 @@ def run_validation(
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     store = _Stages(out_dir, _run_key(profile, figures, model_files), resume)
+    file_inputs = model_file_inputs(model_files)
     bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     done: list[str] = []
@@ -184,14 +252,18 @@ def run_validation(
         for name in STAGES:
             bar.set_postfix_str(name)
             t = time.perf_counter()
-            saved = store.load(name) if resume else None
+            inputs = file_inputs if name in MODEL_FILE_STAGES else {}
+            # the figures draw every stage: redrawn when any stage was recomputed here
+            stale = name == "figures" and len(reused) < len(done)
+            saved = store.load(name, inputs) if resume and not stale else None
             if saved is not None:
                 state[name], timings[name] = saved["value"], saved["seconds"]
                 reused.append(name)
             else:
                 state[name] = compute(name)
                 timings[name] = round(time.perf_counter() - t, 2)
-                store.save(name, {"value": state[name], "seconds": timings[name]})
+                store.save(name, {"value": state[name], "seconds": timings[name],
+                                  "inputs": inputs})  # fmt: skip
             done.append(name)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
@@ -202,6 +274,9 @@ def run_validation(
     except KeyboardInterrupt:
         bar.close()
         raise RunInterrupted(list(done), out_dir) from None
+    except BaseException:
+        bar.close()  # an error message then starts on its own line
+        raise
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))

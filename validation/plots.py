@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from cipcore.atomic import write_with
 from cipcore.models import MODEL_NAMES, get_model
 
 
@@ -25,13 +26,13 @@ def plot_stability_region(
     ax.set_xlabel(r"gain $\beta$ (1/s$^2$)")
     ax.set_ylabel(r"delay $\tau$ (s)")
     ax.set_title(f"{model} model, $\\nu=0$: stable where max Re s < 0 (black line)")
-    fig.savefig(path, dpi=120)
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=120, format=Path(path).suffix[1:]))
     plt.close(fig)
     return path
 
 
 def _save(fig, path: Path) -> Path:
-    fig.savefig(path, dpi=110)
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:]))
     plt.close(fig)
     return path
 

@@ -10,12 +10,13 @@ import base64
 import html
 import json
 import math
-import os
 import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from cipcore.atomic import write_text
 
 from .baseline import compare_with_baseline as baseline_checks
 from .baseline import regression_numbers  # noqa: F401  (moved there; kept importable here)
@@ -39,10 +40,7 @@ def jsonable(v: Any) -> Any:
 
 def write_json(results: dict, path: Path) -> Path:
     """Write ``path`` atomically (a per-process temporary name, then os.replace)."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(json.dumps(jsonable(results), indent=1))
-    os.replace(tmp, path)
-    return path
+    return write_text(path, json.dumps(jsonable(results), indent=1))
 
 
 def _fmt(v: Any, missing: str = "n/a (not computed)") -> str:
@@ -295,8 +293,8 @@ def html_report(md: str, out_dir: Path) -> str:
 def write_reports(results: dict, out_dir: Path, regression: list[Check] | None = None) -> None:
     write_json(results, out_dir / "results.json")
     md = markdown(results, regression)
-    (out_dir / "report.md").write_text(md)
-    (out_dir / "report.html").write_text(html_report(md, out_dir))
+    write_text(out_dir / "report.md", md)
+    write_text(out_dir / "report.html", html_report(md, out_dir))
 
 
 def summary_table(results: dict, regression: list[Check] | None = None) -> str:

@@ -19,6 +19,7 @@ import time
 from cipcore.models import MODEL_NAMES
 
 from .agreement import instrument_checks
+from .cli_args import nonnegative_int, positive_int
 from .faults import CATALOGUE, FAULT_TYPES, Fault, make_fault
 from .stats import FAIL
 
@@ -134,10 +135,21 @@ def cmd_selftest(a: argparse.Namespace) -> int:
 
 def register_selftest(sub: argparse._SubParsersAction) -> None:
     """Add ``cip-validate selftest`` to the CLI's subcommands."""
-    p = sub.add_parser("selftest", help="inject each catalogued fault; show which check flags it")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--realizations", type=int, default=2)
-    p.add_argument("--faults", metavar="A,B,...", help="only these fault types")
+    p = sub.add_parser(
+        "selftest",
+        help="inject each catalogued fault; show which check flags it",
+        description="Run the suite's regression checks on the unmodified model and on the "
+        "model with each catalogued fault injected (a wrong constant, delay, gain, noise "
+        "scaling or integrator); the selftest passes when the unmodified model passes every "
+        "check and every fault is flagged by at least one.",
+    )
+    p.add_argument("--seed", type=nonnegative_int, default=1,
+                   help="root seed of every noise draw (integer >= 0)")  # fmt: skip
+    p.add_argument("--realizations", type=positive_int, default=2,
+                   help="noise realisations per run (count >= 1)")  # fmt: skip
+    p.add_argument("--faults", metavar="A,B,...",
+                   help="only these fault types (default: all: "
+                   + ", ".join(FAULT_TYPES) + ")")  # fmt: skip
     p.add_argument("--power", action="store_true", help="bisect each type's smallest flagged size")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=cmd_selftest)

@@ -54,8 +54,21 @@ def add_stepper_arg(p: argparse.ArgumentParser) -> None:
 
 
 # ---------------------------------------------------------------- lyapunov
+def check_lyapunov_duration(a: argparse.Namespace, tau: float, dt: float) -> None:
+    """--duration must leave one renormalisation interval (tau) after the transient."""
+    from cipcore.results import min_lyapunov_duration
+
+    shortest = min_lyapunov_duration(tau, dt)
+    if a.duration < shortest:
+        raise ParameterError(
+            f"--duration must be >= {shortest:g} s for lambda1 (one renormalisation interval "
+            f"tau = {tau:g} s after the transient, duration/10), got {a.duration:g}"
+        )
+
+
 def cmd_lyapunov(a: argparse.Namespace) -> int:
     params = params_from_args(a)
+    check_lyapunov_duration(a, params.tau, params.dt)
     engine = get_engine(a.engine)
     kw = engine_options(a, engine)
     check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
@@ -95,8 +108,9 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
     lo, hi = a.beta_range
     if not lo < hi:
         raise ParameterError(f"--beta-range needs LOW < HIGH (1/s^2), got {lo:g} {hi:g}")
-    params = params_from_args(a, beta=lo)
-    params_from_args(a, beta=hi)
+    params = params_from_args(a, beta=lo, beta_option="--beta-range")
+    params_from_args(a, beta=hi, beta_option="--beta-range")
+    check_lyapunov_duration(a, params.tau, params.dt)
     check_work("--duration", a.realizations, a.duration, params.dt, runs=a.gains, force=a.force)
     res = critical_gain(
         a.model,
@@ -225,14 +239,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--beta-grid",
         type=grid,
-        default=(0.0, 80.0, 81),
+        default="0:80:81",
         metavar="LOW:HIGH:N",
         help="gains of the region plot (1/s^2; N >= 2 points)",
     )
     p.add_argument(
         "--tau-grid",
         type=grid,
-        default=(0.01, 0.3, 59),
+        default="0.01:0.3:59",
         metavar="LOW:HIGH:N",
         help="delays of the region plot (s; N >= 2 points)",
     )

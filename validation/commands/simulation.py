@@ -6,6 +6,7 @@ import argparse
 
 import numpy as np
 
+from cipcore.atomic import WriteError
 from cipcore.registry import get_engine
 
 from ..cli_args import (
@@ -22,7 +23,7 @@ from ..cli_args import (
     positive_float,
     positive_int,
 )
-from ..divergence import pendulum_length, summary, trajectory_events
+from ..divergence import DIVERGED, LEFT_SMALL_ANGLE, pendulum_length, summary, trajectory_events
 from .analysis import add_stepper_arg, engine_options
 
 #: rod length l (m) and bob / cart mass m/M of the rigid body when not given
@@ -74,8 +75,16 @@ def cmd_simulate(a: argparse.Namespace) -> int:
         progress=not a.json,
         **kw,
     )
-    traj.save_npz(a.out)
+    try:
+        traj.save_npz(a.out)
+    except WriteError as exc:
+        exc.note = (
+            "the simulated run was not kept (rerun with the same --seed for the same numbers)"
+        )
+        raise
     events = trajectory_events(traj, pendulum_length(params))
+    which = {k: [ev.realization for ev in events if ev.kind == k]
+             for k in (DIVERGED, LEFT_SMALL_ANGLE)}  # fmt: skip
     e = traj["balancing_error"].astype(float)
     with np.errstate(over="ignore", invalid="ignore"):
         rms = float(np.sqrt(np.mean(e**2)))
@@ -86,15 +95,15 @@ def cmd_simulate(a: argparse.Namespace) -> int:
         "shape": list(e.shape),
         "rms_balancing_error": rms,
         "max_abs_angle": traj.attrs.get("max_abs_angle"),
-        "left_small_angle": traj.attrs.get("left_small_angle"),
-        "diverged": traj.attrs.get("diverged"),
+        "left_small_angle": which[LEFT_SMALL_ANGLE],  # realisation indices
+        "diverged": which[DIVERGED],
         "divergence": [ev.as_dict() for ev in events],
     }
     if a.json:
         print(dump(summary_d))
     else:
         for k, v in summary_d.items():
-            if k != "divergence":
+            if k != "divergence" and v is not None:  # None: not recorded by this engine
                 print(f"{k}: {v}")
         line = summary(events, e.shape[0])
         print(f"warning: {line}" if line else "no realisation diverged or left the small angles")

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import tempfile
 from pathlib import Path
 
+from cipcore.atomic import WriteError, write_bytes
 from cipcore.params import ParameterError
 
 from ..cli_args import (
@@ -80,6 +80,10 @@ def cmd_run(a: argparse.Namespace) -> int:
                 on_stage=on_stage,
                 model_files=files,
             )
+        except WriteError as exc:
+            exc.note = (f"the stages finished before it are kept in {out / 'stages'}; free "
+                        "space and rerun with --resume to finish")  # fmt: skip
+            raise
         except RunInterrupted as exc:
             kept = ", ".join(exc.kept) or "none"
             name, status = interrupted_status(got)
@@ -101,7 +105,12 @@ def cmd_run(a: argparse.Namespace) -> int:
                                      "failed": [c.as_dict() for c in failed]}  # fmt: skip
             if failed:
                 results["status"] = "fail"
-        write_reports(results, out, regression)
+        try:
+            write_reports(results, out, regression)
+        except WriteError as exc:
+            exc.note = (f"every stage is kept in {out / 'stages'}; free space and rerun with "
+                        "--resume to write the reports")  # fmt: skip
+            raise
     print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
     for d in results.get("divergence", []):
         print(f"divergence: {d['stage']}, {d['run']}: {d['summary']}")
@@ -126,7 +135,7 @@ def cmd_baseline(a: argparse.Namespace) -> int:
     out = check_out_file("--out", a.out, (".json",))
     if a.from_results:
         read_results(a.from_results, "--from")
-        shutil.copyfile(a.from_results, out)
+        write_bytes(out, Path(a.from_results).read_bytes())
     else:
         with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
             try:
@@ -160,7 +169,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         choices=profiles,
         default="quick",
         help="run size: smoke (seconds, every code path), quick (every check, "
-        "minutes), paper (the paper's counts and durations)",
+        "minutes), paper (the paper's counts and durations), robustness (paper, plus the "
+        "full grid of estimator choices)",
     )
     p.add_argument(
         "--out",

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from cipcore.atomic import WriteError
 from cipcore.models import MODEL_NAMES
 from cipcore.params import ParameterError
 
@@ -37,9 +38,21 @@ def study_from_args(a: argparse.Namespace) -> Study:
         d = Study.from_toml(path).as_dict()
     else:
         d = {"name": "cli"}
-    grid = {**d.get("grid", {}), **parse_grid(a.grid or [], "--grid")}
-    fixed = {**d.get("fixed", {}), **parse_grid(a.set or [], "--set")}
-    fixed = {k: v[0] if isinstance(v, list) and len(v) == 1 else v for k, v in fixed.items()}
+    cli_grid, cli_set = parse_grid(a.grid or [], "--grid"), parse_grid(a.set or [], "--set")
+    for k, v in cli_set.items():
+        if len(v) != 1:
+            raise ParameterError(f"--set {k} takes one value, got {len(v)}; sweep it with --grid")
+    both = set(cli_grid) & set(cli_set)
+    if both:
+        k = sorted(both)[0]
+        raise ParameterError(
+            f"--grid {k} and --set {k} contradict: a setting is swept (--grid) or fixed "
+            "(--set), not both"
+        )
+    # the command line overrides the study file: a setting it sweeps is no longer fixed
+    grid = {**{k: v for k, v in d.get("grid", {}).items() if k not in cli_set}, **cli_grid}
+    fixed = {**{k: v for k, v in d.get("fixed", {}).items() if k not in cli_grid},
+             **{k: v[0] for k, v in cli_set.items()}}  # fmt: skip
     for k in ("model", "engine", "realizations", "duration", "seed"):
         if getattr(a, k) is not None:
             d[k] = getattr(a, k)
@@ -50,7 +63,16 @@ def study_from_args(a: argparse.Namespace) -> Study:
     if a.metrics:
         d["metrics"] = [m.strip() for m in a.metrics.split(",") if m.strip()]
     d["grid"], d["fixed"] = grid, fixed
-    return Study(**d)
+    try:
+        return Study(**d)
+    except ParameterError as exc:  # name a setting as typed: grid.beta -> --grid beta
+        text = str(exc)
+        for typed, where in ((cli_grid, "grid"), (cli_set, "fixed")):
+            option = "--grid" if where == "grid" else "--set"
+            for k in typed:
+                if text.startswith(f"{where}.{k}"):
+                    text = f"{option} {k}" + text[len(where) + 1 + len(k) :]
+        raise ParameterError(text) from None
 
 
 def cmd_sweep(a: argparse.Namespace) -> int:
@@ -90,6 +112,11 @@ def cmd_sweep(a: argparse.Namespace) -> int:
                 on_point=finished.append,
                 wait_for_lock=a.wait,
             )
+        except WriteError as exc:
+            exc.note = (f"the {len(finished)} grid point(s) finished in this run and those of "
+                        f"earlier runs are kept in {out / 'points'}; free space and rerun the "
+                        "same command to finish")  # fmt: skip
+            raise
         except KeyboardInterrupt:
             name, status = interrupted_status(got)
             print(
@@ -99,7 +126,13 @@ def cmd_sweep(a: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return status
-    report = write_sweep_report(study, out)
+    try:
+        report = write_sweep_report(study, out)
+    except WriteError as exc:
+        exc.note = (
+            f"every grid point is kept in {out / 'points'} and the dataset in {out / 'sweep.nc'}"
+        )
+        raise
     print(
         f"sweep {study.name}: {rep.computed} points computed, {rep.reused} reused from {out}, "
         f"{time.perf_counter() - t:.1f} s"
@@ -115,9 +148,8 @@ def cmd_sweep(a: argparse.Namespace) -> int:
 
 
 def cmd_sweep_plot(a: argparse.Namespace) -> int:
-    import xarray as xr
-
     from ..sweeps import plot_metric
+    from ..sweeps.store import read_dataset
 
     path = Path(a.dataset)
     if path.is_dir():
@@ -125,12 +157,7 @@ def cmd_sweep_plot(a: argparse.Namespace) -> int:
     if not path.is_file():
         raise ParameterError(f"dataset: no sweep dataset at {a.dataset!r}")
     png = check_out_file("--out", a.out or f"{a.metric}_vs_{a.x}.png", (".png", ".pdf", ".svg"))
-    try:
-        ds_file = xr.open_dataset(path, engine="scipy")
-    except (OSError, ValueError, TypeError) as exc:
-        raise ParameterError(f"dataset: {str(path)!r} is not a sweep dataset ({exc})") from None
-    with ds_file as ds:
-        png = plot_metric(ds.load(), a.metric, a.x, png)
+    png = plot_metric(read_dataset(path), a.metric, a.x, png)
     print(png)
     return EXIT_OK
 

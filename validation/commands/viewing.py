@@ -62,11 +62,37 @@ def _simulate(a: argparse.Namespace):
     return tr, build(a.model, phys), joint_positions(tr, length, a.realization), decimate
 
 
+#: largest frame side (pixels) and memory of all frames (bytes) a render may ask for
+MAX_SIDE, MAX_FRAME_BYTES = 4096, 2 * 1024**3
+
+
+def check_frames(a: argparse.Namespace, pixels: bool = True) -> None:
+    """Before any work: the frames' memory (frames x width x height x 3 bytes with
+    ``pixels``, else the recorded run's: frames x realisations x 8 fields x 8 bytes)."""
+    if pixels:
+        for option, value in (("--width", a.width), ("--height", a.height)):
+            if value > MAX_SIDE:
+                raise ParameterError(f"{option} must be in [1, {MAX_SIDE}] pixels, got {value}")
+    step = max(1, round(1.0 / (a.fps * a.dt))) * a.dt  # s between frames (whole steps)
+    frames = a.duration / step + 1
+    size = a.width * a.height * 3 if pixels else (a.realization + 1) * 64
+    need = frames * size
+    if need > MAX_FRAME_BYTES:
+        raise ParameterError(
+            f"--duration {a.duration:g} s at --fps {a.fps:g} is {frames:.3g} frames"
+            + (f" of {a.width}x{a.height} pixels" if pixels else "")
+            + f" ({need / 1024**3:.3g} GiB); at most "
+            f"{MAX_FRAME_BYTES / 1024**3:g} GiB of frames: lower "
+            + ("--duration, --fps, --width or --height" if pixels else "--duration or --fps")
+        )
+
+
 def cmd_render(a: argparse.Namespace) -> int:
     from ..animation import check_video_path, choose_gl_backend, render_frames, write_video
 
     out = check_out_file("--out", a.out, (".gif", ".mp4"))
     check_video_path("--out", out)
+    check_frames(a)
     if choose_gl_backend() == "already initialised":
         # MuJoCo was imported (by this process) before an offscreen OpenGL backend
         # could be chosen: render in a child process that chooses it first
@@ -95,6 +121,7 @@ def cmd_view(a: argparse.Namespace) -> int:
             "view needs a display (DISPLAY and WAYLAND_DISPLAY are unset); "
             "use `cip-validate render --out run.gif` instead"
         )
+    check_frames(a, pixels=False)
     import mujoco
     import mujoco.viewer
 

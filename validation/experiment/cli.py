@@ -29,17 +29,28 @@ def _port(text: str) -> int:
 
 def register(subparsers) -> None:
     """Add ``experiment`` and its subcommands to the ``cip-validate`` parser."""
-    p = subparsers.add_parser("experiment", help="the paper's experiment: serve, analyze, bots")
+    p = subparsers.add_parser("experiment", help="the paper's experiment: serve, analyze, bots",
+                              description="The paper's balancing experiment (section 4): "
+                              "serve the tracking task to subjects' browsers, run bot-vs-bot "
+                              "trials, and analyse the recordings.")  # fmt: skip
     sub = p.add_subparsers(dest="experiment_command", metavar="SUBCOMMAND")
     sub.required = True
 
-    s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)")
+    s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)",
+                       description="Serve the tracking task on HTTP and WebSockets; prints "
+                       "the URL with its access token; each trial is recorded in "
+                       "--out.")  # fmt: skip
     s.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    s.add_argument("--port", default="8050", help="TCP port, 0..65535 (0 picks a free one)")
-    s.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
-    s.add_argument("--out", default="experiment-data", help="directory of the recordings")
-    s.add_argument("--trial-duration", type=float, default=DURATION, help="trial length (s), > 0")
-    s.add_argument("--countdown", type=int, default=3, help="countdown before a trial (s), >= 0")
+    s.add_argument("--port", default="8050",
+                   help="TCP port, integer in [0, 65535]; 0 picks a free one")  # fmt: skip
+    s.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
+                   help="engine that moves the sticks")  # fmt: skip
+    s.add_argument("--out", default="experiment-data", metavar="DIR",
+                   help="directory of the recordings (created if absent)")  # fmt: skip
+    s.add_argument("--trial-duration", type=float, default=DURATION,
+                   help="length of a trial (s, > 0)")  # fmt: skip
+    s.add_argument("--countdown", type=int, default=3,
+                   help="countdown before a trial (s, integer >= 0)")  # fmt: skip
     s.add_argument(
         "--allow-host", action="append", default=argparse.SUPPRESS, metavar="NAME",
         help="a host name under which pages may reach the server (repeatable; IP addresses "
@@ -47,11 +58,13 @@ def register(subparsers) -> None:
     )  # fmt: skip
     s.set_defaults(func=cmd_serve)
 
-    a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau")
+    a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau",
+                       description="Analyse a directory of recordings: the paper's STCC and "
+                       "RMS tables and its figures of the movement, STCC and RMS vs "
+                       "tau.")  # fmt: skip
     a.add_argument("dir", help="directory of recordings")
-    a.add_argument(
-        "--out", default=argparse.SUPPRESS, help="report directory (default: DIR/analysis)"
-    )
+    a.add_argument("--out", default=argparse.SUPPRESS, metavar="DIR",
+                   help="report directory (default: DIR/analysis)")  # fmt: skip
     a.add_argument("--no-figures", action="store_true", help="write the tables only")
     a.add_argument(
         "--include-incomplete", action="store_true",
@@ -60,17 +73,25 @@ def register(subparsers) -> None:
     )  # fmt: skip
     a.set_defaults(func=cmd_analyze)
 
-    b = sub.add_parser("bots", help="bot-vs-bot trials at full speed, no browser")
+    b = sub.add_parser("bots", help="bot-vs-bot trials at full speed, no browser",
+                       description="Trials of the task played by delayed random-gain bots "
+                       "(the reduced model's controller) at full speed, recorded like "
+                       "subjects' trials.")  # fmt: skip
     b.add_argument("--out", default="experiment-bots", help="directory of the recordings")
-    b.add_argument("--mode", choices=("single", "coupled", "both"), default="both")
+    b.add_argument("--mode", choices=("single", "coupled", "both"), default="both",
+                   help="task: one stick, two coupled sticks, or both")  # fmt: skip
     b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
-    b.add_argument("--trials", type=int, default=5, help="trials per subject and mode, >= 1")
-    b.add_argument("--trial-duration", type=float, default=DURATION, help="trial length (s), > 0")
+    b.add_argument("--trials", type=int, default=5,
+                   help="trials per subject and mode (count >= 1)")  # fmt: skip
+    b.add_argument("--trial-duration", type=float, default=DURATION,
+                   help="length of a trial (s, > 0)")  # fmt: skip
     b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
     b.add_argument("--tau", type=float, default=0.1, help="bot delay (s), >= dt = 1 ms, whole ms")
     b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
-    b.add_argument("--seed", type=int, default=0, help="root seed of every bot's draws, >= 0")
-    b.add_argument("--engine", choices=tuple(ENGINES), default="reduced")
+    b.add_argument("--seed", type=int, default=0,
+                   help="root seed of every bot's draws (integer >= 0)")  # fmt: skip
+    b.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
+                   help="engine that moves the sticks")  # fmt: skip
     b.set_defaults(func=cmd_bots)
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cipcore.atomic import write_text, write_with
 from cipcore.params import ParameterError
 
 from .store import is_number
@@ -112,7 +113,7 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
             else "per grid point, bootstrap 95% band")  # fmt: skip
     ax.set_title(what, fontsize=8)
     ax.legend(fontsize=7)
-    fig.savefig(path, dpi=110)
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:]))
     plt.close(fig)
     return path
 
@@ -228,5 +229,5 @@ def write_sweep_report(study: Study, out_dir: Path) -> Path:
             cells.append(str(int(np.isfinite(t).sum())))
         lines.append("| " + " | ".join(cells) + " |")
     path = out_dir / "report.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path

@@ -14,6 +14,7 @@ from cipcore.registry import get_engine
 
 from .evaluate import evaluate_point
 from .gains import point_gains
+from .lifeline import die_with_parent
 from .store import DirectoryLock, Store, write_dataset
 from .study import Study, point_key
 
@@ -107,9 +108,10 @@ def run_sweep(
 def _run_local(workers: int, sd: dict, todo: list[dict], finished, gains: dict) -> None:
     # forkserver, not fork: forking a process that has loaded a multithreaded
     # runtime (JAX/XLA for mjx, warp) can deadlock the child
-    pool = ProcessPoolExecutor(
-        max_workers=workers, mp_context=multiprocessing.get_context("forkserver")
-    )
+    # every process of the pool dies with this one (validation.sweeps.lifeline)
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=die_with_parent)
     try:
         futs = {pool.submit(evaluate_point, sd, p, 1, gains.get(point_key(p))): p for p in todo}
         pending = set(futs)

@@ -24,6 +24,7 @@ import hashlib
 import json
 import os
 import socket
+import sys
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -31,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from cipcore.atomic import write_text, write_with
 from cipcore.params import ParameterError
 
 from ..versions import package_versions
@@ -39,11 +41,15 @@ from .study import Study, point_key
 LOCK_NAME = ".lock"
 
 
+def _note(text: str) -> None:
+    from tqdm.auto import tqdm
+
+    tqdm.write(f"cip-validate: {text}", file=sys.stderr)
+
+
 def atomic_write(path: Path, text: str) -> None:
     """Write ``path`` through a temporary name unique to this process, then os.replace."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    write_text(path, text)
 
 
 class DirectoryLock:
@@ -106,11 +112,17 @@ class Store:
         self.points_dir = self.dir / "points"
         self.points_dir.mkdir(parents=True, exist_ok=True)
         meta = self.dir / "study.json"
+        old = None
         if meta.exists():
             try:
                 old = json.loads(meta.read_text())
-            except ValueError:
-                old = {}
+                if not isinstance(old, dict) or "fingerprint" not in old:
+                    raise ValueError("no study fingerprint in it")
+            except (OSError, ValueError) as exc:  # point files carry their fingerprint:
+                old = None  # rewriting study.json cannot mix another study's points in
+                _note(f"{meta} is damaged ({' '.join(str(exc).split())}); rewritten for "
+                      f"this study (its finished points are found by fingerprint)")  # fmt: skip
+        if old is not None:
             if old.get("fingerprint") != self.fingerprint:
                 raise ParameterError(
                     f"--out {self.dir} holds another study or one made with other package "
@@ -131,10 +143,14 @@ class Store:
             return None
         try:
             rec = json.loads(p.read_text())
-        except ValueError:
+            ok = rec.get("point") == point and rec.get("fingerprint") == self.fingerprint
+            if not ok or not isinstance(rec.get("result"), dict):
+                raise ValueError("not a record of this grid point")
+        except (OSError, ValueError, AttributeError) as exc:
+            _note(f"sweep point file {p} is damaged ({' '.join(str(exc).split())}); the "
+                  "point is recomputed")  # fmt: skip
             return None
-        ok = rec.get("point") == point and rec.get("fingerprint") == self.fingerprint
-        return rec["result"] if ok else None
+        return rec["result"]
 
     def save(self, point: dict, result: dict) -> None:
         rec = {"fingerprint": self.fingerprint, "point": point, "result": result}
@@ -266,8 +282,50 @@ def _coord(values: list) -> np.ndarray:
 def write_dataset(study: Study, store: Store) -> Path:
     """Assemble every point of ``store`` into ``DIR/sweep.nc`` (atomically)."""
     ds = assemble(study, [(p, store.load(p)) for p in study.points()])
+    ds.attrs["content_sha256"] = dataset_digest(ds)
     path = store.dir / "sweep.nc"
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    ds.to_netcdf(tmp, engine="scipy")
-    os.replace(tmp, path)
-    return path
+    return write_with(path, lambda tmp: ds.to_netcdf(tmp, engine="scipy"))
+
+
+def dataset_digest(ds) -> str:
+    """SHA-256 of every variable's name, dimensions and values (checked on reading)."""
+    h = hashlib.sha256()
+    for name in sorted(ds.variables, key=str):
+        v = ds.variables[name]
+        values = np.asarray(v.values)
+        h.update(f"{name}{tuple(v.dims)}{values.shape}".encode())
+        if values.dtype.kind in "fiub":
+            h.update(np.ascontiguousarray(values, dtype="<f8").tobytes())
+        else:
+            h.update("\x00".join(map(str, values.ravel())).encode())
+    return h.hexdigest()
+
+
+def read_dataset(path: Path, option: str = "dataset"):
+    """A ``sweep.nc`` written by :func:`write_dataset`, loaded; a damaged one is refused.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the file and what is wrong: not NetCDF, truncated, not a
+        sweep dataset, or values that do not match the stored content hash.
+    """
+    import xarray as xr
+
+    try:
+        with xr.open_dataset(path, engine="scipy") as f:
+            ds = f.load()
+    except Exception as exc:  # any reader error: the file is truncated or not NetCDF
+        why = " ".join(f"{type(exc).__name__}: {exc}".split())
+        raise ParameterError(
+            f"{option}: {str(path)!r} is damaged or not a sweep dataset ({why})"
+        ) from None
+    if "fingerprint" not in ds.attrs or "study" not in ds.attrs:
+        raise ParameterError(f"{option}: {str(path)!r} is not a sweep dataset (no study in it)")
+    stored = ds.attrs.get("content_sha256")
+    if stored is not None and stored != dataset_digest(ds):
+        raise ParameterError(
+            f"{option}: {str(path)!r} is damaged (its values do not match the content hash "
+            "stored when it was written); rerun the sweep to rebuild it from DIR/points"
+        )
+    return ds

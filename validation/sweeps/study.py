@@ -118,6 +118,14 @@ class Study:
                 raise ParameterError(f"grid.{k} must be a non-empty list, got {vals!r}")
             for v in vals:
                 _check_value(f"grid.{k}", k, v)
+            seen = [v if isinstance(v, str) else float(v) for v in vals]
+            twice = [v for i, v in enumerate(seen) if v in seen[:i]]
+            if twice:
+                raise ParameterError(
+                    f"grid.{k}: the value {twice[0]:g} is given twice; each value once"
+                    if not isinstance(twice[0], str)
+                    else f"grid.{k}: the value {twice[0]!r} is given twice; each value once"
+                )
         for k, v in self.fixed.items():
             _check_value(f"fixed.{k}", k, v)
         if self.gain and ("beta" in self.fixed or "beta" in self.grid):
@@ -141,7 +149,14 @@ class Study:
             )
         # validate every point's parameters up front: a bad value fails before any work
         for point in self.points():
-            point_params(self, point)
+            try:
+                point_params(self, point)
+            except ParameterError as exc:  # name the setting: grid.integrator, fixed.tau
+                k = str(exc).split(" ", 1)[0]
+                where = "grid" if k in self.grid else "fixed" if k in self.fixed else None
+                if where is None:
+                    raise
+                raise ParameterError(f"{where}.{k}: {exc}") from None
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Study:
@@ -160,6 +175,12 @@ class Study:
                 f"study file {path}: unknown table(s) {', '.join(sorted(unknown))}; "
                 f"allowed: {', '.join(f'[{t}]' for t in TABLES)}"
             )
+        both = set(d.get("fixed", {})) & set(d.get("grid", {}))
+        if both:
+            raise ParameterError(
+                f"study file {path}: {', '.join(sorted(both))} both in [fixed] and [grid]; "
+                "a setting is fixed or swept, not both"
+            )
         s = d.get("study", {})
         allowed = [f.name for f in dataclasses.fields(cls) if f.name not in TABLES]
         for k in s:
@@ -172,20 +193,22 @@ class Study:
 
     def _check_no_effect(self, rigid: bool) -> None:
         """Refuse, in one line, a setting that cannot change any result of this study."""
-        set_keys = [*self.fixed, *self.grid]
-        physical = [k for k in set_keys if k in PHYSICAL_ONLY]
+        where = {**{k: "fixed" for k in self.fixed}, **{k: "grid" for k in self.grid}}
+        physical = [k for k in where if k in PHYSICAL_ONLY]
         if physical and not rigid:
+            k = physical[0]
             raise ParameterError(
-                f"{physical[0]}: no effect on the {self.engine} engine: it integrates the "
-                "reduced model (eqs. (3), (5)), which has no rigid body, rod or cart mass"
+                f"{where[k]}.{k} is a rigid-body setting with no effect on the {self.engine} "
+                "engine: it integrates the reduced model (eqs. (3), (5)), which has no rigid "
+                "body, rod or cart mass"
             )
         models = self.compare or (self.model,)
-        rod = [k for k in set_keys if k in ROD_KEYS]
+        rod = [k for k in where if k in ROD_KEYS]
         single = [m for m in models if get_model(m).n_controllers < 2]
         if rod and single:
             raise ParameterError(
-                f"{rod[0]}: no effect on the {single[0]} model: it has one stick and no rod "
-                "(the rod joins the tips of two sticks)"
+                f"{where[rod[0]]}.{rod[0]}: no effect on the {single[0]} model: it has one "
+                "stick and no rod (the rod joins the tips of two sticks)"
             )
 
     def axes(self) -> dict[str, list]:
@@ -295,6 +318,11 @@ def parse_grid(items: list[str], option: str = "--grid") -> dict[str, list]:
         values = [_value(v) for v in vals.split(",") if v.strip()]
         if not values:
             raise ParameterError(f"{option} {k.strip()}: no values given in {item!r}")
+        if k.strip() in grid:
+            raise ParameterError(
+                f"{option} {k.strip()} is given twice; give every value in one {option} "
+                f"{k.strip()}=V1,V2,..."
+            )
         grid[k.strip()] = values
     return grid
 

@@ -1,0 +1,109 @@
+"""``run --resume`` state: what is reused, what is recomputed and said so.
+
+The stage computations are replaced by cheap stand-ins that count their calls,
+so these tests check the resume rules (content hashes of ``--mjcf`` files,
+damaged manifest or stage records, deleted figures) in milliseconds.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from validation import harness
+from validation.harness import MODEL_FILE_STAGES, STAGES, run_validation
+from validation.profiles import PROFILES
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Replace every stage by a stand-in; returns {stage: number of computations}."""
+    calls = {name: 0 for name in STAGES}
+
+    def stand_in(name):
+        def compute(*args, **kwargs):
+            calls[name] += 1
+            return [] if name == "figures" else {"stage": name}
+
+        return compute
+
+    monkeypatch.setattr(harness.agreement, "lyapunov_checks", stand_in("lambda1 agreement"))
+    monkeypatch.setattr(harness.agreement, "series_checks", stand_in("time-series agreement"))
+    monkeypatch.setattr(harness.agreement, "amplitude_scan", stand_in("amplitude scan"))
+    monkeypatch.setattr(harness.paper, "critical_gains", stand_in("critical gains"))
+    monkeypatch.setattr(harness.paper, "lyapunov_curve", stand_in("lambda1 curve"))
+    monkeypatch.setattr(harness.paper, "rms_and_velocity", stand_in("RMS and velocity"))
+    monkeypatch.setattr(harness.paper, "peaks_and_spectra", stand_in("STCC and spectra"))
+    monkeypatch.setattr(harness.paper, "robustness", stand_in("robustness"))
+    monkeypatch.setattr(harness.paper, "nonlinear_comparison", stand_in("nonlinear stick"))
+    monkeypatch.setattr(harness.agreement, "rod_length_study", stand_in("rod-length study"))
+    monkeypatch.setattr(harness, "_figures", stand_in("figures"))
+    monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
+    return calls
+
+
+def _run(out, files=None, resume=True):
+    return run_validation(PROFILES["smoke"], out, progress=False, figures=True,
+                          resume=resume, model_files=files)  # fmt: skip
+
+
+def test_editing_an_mjcf_file_recomputes_exactly_the_stages_that_read_it(counted, tmp_path, capsys):
+    single = tmp_path / "my_single.xml"
+    single.write_text("<mujoco/>  <!-- gravity 9.81 -->")
+    files = {"single": str(single)}
+    _run(tmp_path / "out", files, resume=False)
+    assert all(n == 1 for n in counted.values())
+
+    _run(tmp_path / "out", files)  # nothing changed: everything reused
+    assert all(n == 1 for n in counted.values())
+
+    single.write_text("<mujoco/>  <!-- gravity 9.7 -->")  # same path, other content
+    capsys.readouterr()
+    res = _run(tmp_path / "out", files)
+    for name in STAGES:
+        again = name in MODEL_FILE_STAGES or name == "figures"
+        assert counted[name] == (2 if again else 1), name
+    assert set(res["stages_reused"]) == set(STAGES) - set(MODEL_FILE_STAGES) - {"figures"}
+    err = capsys.readouterr().err
+    assert "other model file contents (single: " in err and "recomputed" in err
+
+
+def test_damaged_manifest_is_a_stated_recompute_of_every_stage(counted, tmp_path, capsys):
+    out = tmp_path / "out"
+    _run(out, resume=False)
+    (out / "stages" / "manifest.json").write_text('{"key": "ab')  # truncated
+    capsys.readouterr()
+    _run(out)
+    assert all(n == 2 for n in counted.values())
+    err = capsys.readouterr().err
+    assert "manifest.json is damaged" in err and "every stage is recomputed" in err
+
+
+def test_damaged_stage_record_is_a_stated_recompute_of_that_stage(counted, tmp_path, capsys):
+    out = tmp_path / "out"
+    _run(out, resume=False)
+    rec = next((out / "stages").glob("3-*.pkl"))
+    rec.write_bytes(rec.read_bytes()[:5])
+    capsys.readouterr()
+    _run(out)
+    assert counted["critical gains"] == 2 and counted["lambda1 curve"] == 1
+    assert counted["figures"] == 2  # drawn from a recomputed stage
+    assert "'critical gains'" in capsys.readouterr().err
+
+
+def test_deleted_figure_is_redrawn(counted, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+
+    def figures(out_dir, state, profile):
+        counted["figures"] += 1
+        (out_dir / "fig_x.png").write_bytes(b"png")
+        return [out_dir / "fig_x.png"]
+
+    monkeypatch.setattr(harness, "_figures", figures)
+    _run(out, resume=False)
+    _run(out)
+    assert counted["figures"] == 1
+    (out / "fig_x.png").unlink()
+    capsys.readouterr()
+    _run(out)
+    assert counted["figures"] == 2 and (out / "fig_x.png").is_file()
+    assert "figure file(s) missing" in capsys.readouterr().err
