@@ -24,6 +24,7 @@ ENGINES: dict[str, str] = {
     "drake": "cip.drake:ENGINE",
     "mujoco-warp": "cip.warp:ENGINE",
     "reduced-gpu": "reduced.gpu:ENGINE",
+    "bullet": "cip.bullet:ENGINE",
 }
 
 REFERENCE = "reduced"
