@@ -25,6 +25,7 @@ ENGINES: dict[str, str] = {
     "mujoco-warp": "cip.warp:ENGINE",
     "reduced-gpu": "reduced.gpu:ENGINE",
     "bullet": "cip.bullet:ENGINE",
+    "exudyn": "cip.exudyn:ENGINE",
 }
 
 REFERENCE = "reduced"
