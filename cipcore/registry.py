@@ -26,6 +26,7 @@ ENGINES: dict[str, str] = {
     "reduced-gpu": "reduced.gpu:ENGINE",
     "bullet": "cip.bullet:ENGINE",
     "exudyn": "cip.exudyn:ENGINE",
+    "simbody": "cip.simbody:ENGINE",
 }
 
 REFERENCE = "reduced"
