@@ -125,13 +125,18 @@ class BulletRollout:
             inertia = [[M] * 3 for M in masses[:1]] + [list(g.bob_inertia[i])]
             if n == 3:
                 inertia.append([m_rod * g.rod_length**2 / 12] * 3)
+            pb.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
             for j in range(n):
                 pb.changeDynamics(
-                    body, j, localInertiaDiagonal=inertia[j], linearDamping=0.0,
-                    angularDamping=0.0, jointDamping=0.0, maxJointVelocity=1e9,
-                    physicsClientId=cid,
+                    body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0,
+                    maxJointVelocity=1e9, physicsClientId=cid,
                 )  # fmt: skip
-            pb.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
+                # alone and last: changeDynamics with other arguments resets it from the
+                # (absent) collision shape, to zero
+                pb.changeDynamics(body, j, localInertiaDiagonal=inertia[j], physicsClientId=cid)
+                got = pb.getDynamicsInfo(body, j, physicsClientId=cid)[2]
+                if not np.allclose(got, inertia[j], rtol=1e-12, atol=0):
+                    raise RuntimeError(f"Bullet kept link inertia {got}, not {inertia[j]}")
             pb.setJointMotorControlArray(
                 body, list(range(n)), pb.VELOCITY_CONTROL, forces=[0.0] * n, physicsClientId=cid
             )
