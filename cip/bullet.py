@@ -54,7 +54,8 @@ from .quiet import quiet_import
 ROD_LINK_MASS_FRACTION = 1e-3
 #: Solver iterations of Bullet's constraint solver per step.
 SOLVER_ITERATIONS = 100
-#: Baumgarte error-reduction parameter of the point-to-point rod closure (Bullet's default 0.2).
+#: Baumgarte error-reduction parameter of the constraint solver, which the point-to-point
+#: rod closure uses (Bullet's default 0.2; ``changeConstraint(erp=...)`` has no effect on it).
 ROD_ERP = 0.8
 
 
@@ -95,7 +96,7 @@ class BulletRollout:
         pb.setGravity(*g.gravity, physicsClientId=cid)
         pb.setTimeStep(self.dt, physicsClientId=cid)
         pb.setPhysicsEngineParameter(
-            numSubSteps=0, numSolverIterations=SOLVER_ITERATIONS, physicsClientId=cid
+            numSubSteps=0, numSolverIterations=SOLVER_ITERATIONS, erp=ROD_ERP, physicsClientId=cid
         )
         coupled = g.rod_length is not None
         m_rod = ROD_LINK_MASS_FRACTION * g.bob_mass[0] if coupled else 0.0
@@ -146,7 +147,7 @@ class BulletRollout:
                 bodies[0], 2, bodies[1], 1, pb.JOINT_POINT2POINT, [0, 0, 0],
                 [-0.5 * g.rod_length, 0, 0], [0, 0, 0], physicsClientId=cid,
             )  # fmt: skip
-            pb.changeConstraint(c, maxForce=1e12, erp=ROD_ERP, physicsClientId=cid)
+            pb.changeConstraint(c, maxForce=1e12, physicsClientId=cid)
         return cid, bodies
 
     def _write(self, cid: int, bodies: list[int], s: np.ndarray) -> None:

@@ -54,7 +54,7 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     )
     registered = ", ".join(engine_names())
     p.add_argument("--engines", metavar="A,B,...",
-                   help=f"engines to validate (default: all registered: {registered})")  # fmt: skip
+                   help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
     p.add_argument("--profile", choices=tuple(ENGINE_PROFILES), default="quick",
                    help="sizes of the checks")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="root seed of every noise draw")
