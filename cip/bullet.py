@@ -49,6 +49,13 @@ from .drake_plant import generalized_forces, geometry_from_mujoco
 from .engines import RigidBodyEngine
 from .quiet import quiet_import
 
+#: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m
+#: (``benchmarks/engine_floor.py``, seeds 0-3, 4 realisations, windows of 1-10 s): the
+#: floor is at most 3.5e-3 (10 s; the rigid body's cart reaction m/M plus, for the
+#: engines not stepping semi-implicit Euler, 6-7e-4 of time discretisation), every
+#: control one step late gives at least 6.2e-3.  5e-3 separates the two.
+TRAJECTORY_TOLERANCE = 5e-3
+
 #: Mass of the rod link as a fraction of the bob mass m (Bullet needs a positive
 #: link mass; taken off the bobs, half each, so the translational mass is the MJCF's).
 ROD_LINK_MASS_FRACTION = 1e-3
@@ -226,7 +233,7 @@ ENGINE = RigidBodyEngine(
         rigid_body=True,
         linearize=False,
         family="Bullet",
-        trajectory_tolerance=1e-2,
+        trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="Euler",
         rod="soft",
         twin=None,

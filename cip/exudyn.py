@@ -53,6 +53,13 @@ from cipcore.params import ParameterError
 from .drake_plant import CIPGeometry, geometry_from_mujoco
 from .engines import RigidBodyEngine
 
+#: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m
+#: (``benchmarks/engine_floor.py``, seeds 0-3, 4 realisations, windows of 1-10 s): the
+#: floor is at most 3.5e-3 (10 s; the rigid body's cart reaction m/M plus, for the
+#: engines not stepping semi-implicit Euler, 6-7e-4 of time discretisation), every
+#: control one step late gives at least 6.2e-3.  5e-3 separates the two.
+TRAJECTORY_TOLERANCE = 5e-3
+
 #: Newmark parameters of the step (see the module docstring).
 NEWMARK_BETA = 0.5
 NEWMARK_GAMMA = 1.0
@@ -256,7 +263,7 @@ ENGINE = RigidBodyEngine(
         rigid_body=True,
         linearize=False,
         family="Exudyn",
-        trajectory_tolerance=1e-2,
+        trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="Newmark(beta=1/2, gamma=1)",
         rod="rigid",
         twin=None,
