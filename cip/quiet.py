@@ -8,10 +8,12 @@ from stdout.  Python-level errors of the import still raise as usual.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import importlib
 import os
 import sys
+from collections.abc import Iterator
 from types import ModuleType
 
 
@@ -33,3 +35,23 @@ def quiet_import(name: str) -> ModuleType:
         os.dup2(saved[1], 2)
         for fd in (*saved, devnull):
             os.close(fd)
+
+
+@contextlib.contextmanager
+def stdout_to_stderr() -> Iterator[None]:
+    """Send whatever is written to file descriptor 1 (Python or C) to descriptor 2 meanwhile.
+
+    For commands whose stdout carries one JSON object: an engine package that
+    announces itself when first used (warp prints its device banner) then
+    writes to stderr instead of corrupting the JSON.
+    """
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        ctypes.CDLL(None).fflush(None)
+        os.dup2(saved, 1)
+        os.close(saved)

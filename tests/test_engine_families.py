@@ -161,3 +161,16 @@ def test_import_banners_stay_off_stdout_and_stderr(name: str) -> None:
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert done.stdout == "" and done.stderr == "", (done.stdout, done.stderr)
+
+
+def test_engines_json_stays_parseable_when_an_engine_prints_a_banner(tmp_path, capfd) -> None:
+    """warp announces its devices on stdout when first imported; ``--json`` keeps it out."""
+    import json
+
+    from validation.cli import main
+
+    rc = main(["engines", "--engines", "reduced,mujoco-warp", "--profile", "smoke", "--json",
+               "--out", str(tmp_path), "--no-figures"])  # fmt: skip
+    out = capfd.readouterr().out
+    res = json.loads(out)
+    assert rc == 0 and [r["engine"] for r in res["engines"]] == ["reduced", "mujoco-warp"]

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from cip.quiet import stdout_to_stderr
 from cipcore.registry import engine_names
 
 from .cli_args import check_out_dir
@@ -22,7 +23,11 @@ def cmd_engines(a: argparse.Namespace) -> int:
         raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
     out = check_out_dir("--out", a.out)  # checked before any work
     say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
-    results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    if a.json:  # an engine's import banner (warp's) must not corrupt the JSON on stdout
+        with stdout_to_stderr():
+            results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    else:
+        results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
     write_engine_reports(results, out, figures=not a.no_figures)
     if a.json:
         from .report import jsonable
