@@ -49,7 +49,8 @@ def stdout_to_stderr() -> Iterator[None]:
     saved = os.dup(1)
     try:
         os.dup2(2, 1)
-        yield
+        with contextlib.redirect_stdout(sys.stderr):  # sys.stdout need not write to fd 1
+            yield
     finally:
         sys.stdout.flush()
         ctypes.CDLL(None).fflush(None)

@@ -171,6 +171,7 @@ def test_engines_json_stays_parseable_when_an_engine_prints_a_banner(tmp_path, c
 
     rc = main(["engines", "--engines", "reduced,mujoco-warp", "--profile", "smoke", "--json",
                "--out", str(tmp_path), "--no-figures"])  # fmt: skip
-    out = capfd.readouterr().out
-    res = json.loads(out)
+    cap = capfd.readouterr()
+    assert cap.out.strip(), f"nothing on stdout; stderr: {cap.err[-500:]}"
+    res = json.loads(cap.out)
     assert rc == 0 and [r["engine"] for r in res["engines"]] == ["reduced", "mujoco-warp"]
