@@ -31,7 +31,8 @@ the step is a 4th-order Runge-Kutta step of the gravity-inertia dynamics
 followed by the constraint projection.  (Simbody's default, the
 variable-step RK-Merson at an accuracy, would take any number of substeps
 within one dt; it is not used.)  OpenSim's log is set to ``error`` so that
-its per-integration messages do not reach stdout.
+its per-integration messages do not reach stdout, and its log file sink is
+removed (no ``opensim.log`` in the working directory).
 
 One ``Manager`` (and integrator) per realisation on a shared ``Model``, so
 that a realisation's numbers do not depend on the others of its batch; each
@@ -65,6 +66,7 @@ CONSTRAINT_TOLERANCE = 1e-12
 def _opensim():
     import opensim
 
+    opensim.Logger.removeFileSink()  # else OpenSim writes opensim.log into the working directory
     opensim.Logger.setLevelString("error")
     return opensim
 

@@ -152,15 +152,21 @@ def test_bullet_single_model_is_mujoco_to_rounding() -> None:
 
 
 @pytest.mark.parametrize("name", FAMILIES)
-def test_import_banners_stay_off_stdout_and_stderr(name: str) -> None:
+def test_import_banners_stay_off_stdout_and_stderr(name: str, tmp_path) -> None:
+    """Nothing on stdout or stderr, and no log file left in the working directory."""
     _engine(name)
+    import os
+
     code = (
         "from cipcore.registry import get_engine; from cipcore.params import BalanceParams; "
         f"get_engine({name!r}).simulate('coupled', BalanceParams(beta=20.306), 0.01, 1)"
     )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp_path, env=env)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert done.stdout == "" and done.stderr == "", (done.stdout, done.stderr)
+    assert os.listdir(tmp_path) == []
 
 
 def test_engines_json_stays_parseable_when_an_engine_prints_a_banner(tmp_path, capfd) -> None:
