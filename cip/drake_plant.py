@@ -56,7 +56,8 @@ class CIPGeometry:
     bob mass (kg), tip height L (m), bob central inertia (kg m^2), the damping
     coefficients c_tip = gamma m and c_cart = gamma M (N s/m), the actuator ids
     and gears of the motors u_i; and the rod length l (m, None for one
-    controller), gravity vector (m/s^2), time step dt (s).
+    controller, or when the MJCF's rod equality is disabled), gravity vector
+    (m/s^2), time step dt (s).
     """
 
     n_controllers: int
@@ -135,7 +136,8 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
         rows["dof_x"].append(int(m.jnt_dofadr[jx]))
         rows["dof_theta"].append(int(m.jnt_dofadr[jt]))
     rod = None
-    if nc == 2:
+    equality_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
+    if nc == 2 and equality_on and m.eq_active0[_id(m, _OBJ.mjOBJ_EQUALITY, "rod")]:
         rod = float(m.tendon_length0[_id(m, _OBJ.mjOBJ_TENDON, "rod")])
     return CIPGeometry(
         n_controllers=nc,

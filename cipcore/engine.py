@@ -49,6 +49,12 @@ class Capabilities:
         and ``cip-validate engines`` hold it to this).
     packs_points : True when a sweep should pack every grid point x realisation
         into one batch (:mod:`validation.gpu_sweep`) instead of a point at a time.
+    integrator : the engine's time discretisation over one step dt (e.g. "Euler" for
+        semi-implicit Euler, "RK4", "generalized-alpha").
+    rod : how the coupled model's rod is held: "soft" (a regularised constraint),
+        "rigid" (a constraint solved to a tolerance) or "penalty" (a spring).
+    twin : the name of the exact discrete twin of this engine's discretisation, or
+        None where there is none.
     """
 
     precision: str
@@ -59,6 +65,9 @@ class Capabilities:
     family: str = ""
     trajectory_tolerance: float = 1e-2
     packs_points: bool = False
+    integrator: str = "Euler"
+    rod: str = "soft"
+    twin: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

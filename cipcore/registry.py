@@ -24,6 +24,9 @@ ENGINES: dict[str, str] = {
     "drake": "cip.drake:ENGINE",
     "mujoco-warp": "cip.warp:ENGINE",
     "reduced-gpu": "reduced.gpu:ENGINE",
+    "bullet": "cip.bullet:ENGINE",
+    "exudyn": "cip.exudyn:ENGINE",
+    "simbody": "cip.simbody:ENGINE",
 }
 
 REFERENCE = "reduced"

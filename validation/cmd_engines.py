@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 
+from cip.quiet import stdout_to_stderr
 from cipcore.registry import engine_names
 
 from .cli_args import add_threads_arg, check_out_dir, nonnegative_int
@@ -22,7 +23,11 @@ def cmd_engines(a: argparse.Namespace) -> int:
         raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
     out = check_out_dir("--out", a.out)  # checked before any work
     say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
-    results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    if a.json:  # an engine's import banner (warp's) must not corrupt the JSON on stdout
+        with stdout_to_stderr():
+            results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    else:
+        results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
     write_engine_reports(results, out, figures=not a.no_figures)
     if a.json:
         from .report import jsonable
@@ -57,7 +62,7 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     )
     registered = ", ".join(engine_names())
     p.add_argument("--engines", metavar="A,B,...",
-                   help=f"engines to validate (default: all registered: {registered})")  # fmt: skip
+                   help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
     p.add_argument("--profile", choices=tuple(ENGINE_PROFILES), default="quick",
                    help="sizes of the checks: smoke (seconds), quick (minutes), paper "
                    "(the paper's run lengths)")  # fmt: skip

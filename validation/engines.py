@@ -207,8 +207,8 @@ def validate_engine(
 
 
 def parse_engines(text: str | None) -> list[str]:
-    """Engine names from "a,b,..." (all registered engines when None)."""
-    if text is None:
+    """Engine names from "a,b,..." (all registered engines when None or "all")."""
+    if text is None or text.strip() == "all":
         return list(engine_names())
     names = [t.strip() for t in text.split(",") if t.strip()]
     if not names:
@@ -284,7 +284,8 @@ def markdown(results: dict[str, Any]) -> str:
         lin = r.get("linearization_residual")
         tp = r["throughput"]
         lines.append(
-            f"| {r['engine']} | {r['status']} | {c['family']} | {c['precision']} | {c['device']} "
+            f"| {r['engine']} | {r['status']} | {c['family']} ({c.get('integrator')}, "
+            f"rod {c.get('rod')}) | {c['precision']} | {c['device']} "
             f"| {_g(d['single'])} | {_g(d['coupled'])} | {_g(c['trajectory_tolerance'])} "
             f"| {lyap_s} | {_g(scan.get('breakdown_angle'))} | {_g(r.get('rod_mismatch'))} "
             f"| {_g(max(lin.values())) if lin else 'n/a'} "

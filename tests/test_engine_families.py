@@ -1,0 +1,183 @@
+"""The Bullet, Exudyn and Simbody engines: faults at the engine boundary reach them,
+a one-step delay error fails the cross-engine trajectory check, their state maps
+round-trip, and their import banners stay off stdout.
+
+The shared contract (same noise -> reduced trajectory, delay of tau/dt steps,
+rod, energy, batch split) runs on them in ``tests/test_engine_contract.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cip.model import CIPParams, build
+from cip.runner import MujocoRollout
+from cip.simulate import simulate_full
+from cipcore import registry
+from cipcore.params import BalanceParams
+from cipcore.registry import availability, get_engine
+from validation.engines import EngineProfile, validate_engine
+from validation.faults import Fault, make_fault
+from validation.stats import FAIL
+
+FAMILIES = ("bullet", "exudyn", "simbody")
+P = BalanceParams(beta=20.306)
+
+
+def _engine(name: str):
+    reason = availability(name)
+    if reason is not None:
+        pytest.skip(f"engine {name!r} unavailable: {reason}")
+    return get_engine(name)
+
+
+def faulty_backend(base: type, fault: Fault) -> type:
+    """``base`` (any rollout backend) stepping a faulty copy of the model and/or controls."""
+    import copy
+
+    import mujoco
+
+    class Faulty(base):
+        def __init__(self, model, n_realizations, threads):
+            m = copy.deepcopy(model)
+            if fault.edit_model is not None:
+                fault.edit_model(m)
+                mujoco.mj_setConst(m, mujoco.MjData(m))
+            self._m, self._memory = m, {}
+            super().__init__(m, n_realizations, threads)
+
+        def __call__(self, state, ctrl, out):
+            if fault.edit_ctrl is not None:
+                ctrl = np.ascontiguousarray(fault.edit_ctrl(self._m, ctrl, self._memory))
+            super().__call__(state, ctrl, out)
+
+    return Faulty
+
+
+def _run(backend: type, model: str = "single", duration: float = 1.0) -> np.ndarray:
+    return simulate_full(model, P, duration, 1, 3, amplitude=1e-3, backend=backend,
+                         threads=1)["balancing_error"]  # fmt: skip
+
+
+@functools.cache
+def _clean(name: str, model: str) -> np.ndarray:
+    return _run(get_engine(name).backend(), model)
+
+
+def _rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+@pytest.mark.parametrize(
+    ("kind", "size", "model"),
+    [("cart_damping", 0.01, "single"), ("tip_damping", 0.01, "single"),
+     ("pendulum_length", 0.005, "single"), ("mass_ratio", 1.0, "single"),
+     ("gravity", 0.01, "single"), ("timestep", 0.01, "single"), ("delay_late", 1, "single"),
+     ("bob_inertia", 0.01, "single"), ("rod_removed", 1, "coupled")],
+)  # fmt: skip
+def test_a_fault_at_the_engine_boundary_moves_the_engine_as_it_moves_mujoco(
+    name: str, kind: str, size: float, model: str
+) -> None:
+    """The fault's effect on the trajectory (relative to the clean run of the same engine)
+    matches MuJoCo's to within a factor 1.5: the engine reads the faulty model copy
+    and receives the faulty controls, as the selftest's catalogue needs.  Exudyn's
+    point-mass bob refuses a bob inertia with a one-line error instead."""
+    from cipcore.params import ParameterError
+
+    base = _engine(name).backend()
+    fault = make_fault(kind, size)
+    try:
+        faulty = _run(faulty_backend(base, fault), model)
+    except ParameterError as exc:  # a model the engine cannot build, refused in one line
+        assert kind == "bob_inertia" and "point mass" in str(exc), str(exc)
+        return
+    moved = _rel(faulty, _clean(name, model))
+    ref = _rel(_run(faulty_backend(MujocoRollout, fault), model), _clean("mujoco", model))
+    assert ref > 1e-4, f"{kind}: MuJoCo itself barely moves ({ref:.2e})"
+    assert ref / 1.5 < moved < 1.5 * ref, f"{name} {kind}: moved {moved:.3e}, MuJoCo {ref:.3e}"
+
+
+#: The cross-engine checks at a size a test can afford (1 s trajectories).
+TINY = EngineProfile(
+    "tiny", 1.0, 2, {"single": (20.306,), "coupled": (21.0,)}, 1.0, 2, (1e-6, 1e-1), 0.5, 2, 0.1
+)
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_one_step_delay_error_fails_the_engines_trajectory_check(name, monkeypatch) -> None:
+    engine = _engine(name)
+    late = faulty_backend(engine.backend(), make_fault("delay_late", 1))
+    faulty = dataclasses.replace(engine, name=f"{name}-late", backend=lambda: late)
+    monkeypatch.setattr(sys.modules[__name__], "FAULTY", faulty, raising=False)
+    monkeypatch.setitem(registry.ENGINES, faulty.name, f"{__name__}:FAULTY")
+    row = validate_engine(faulty.name, TINY, seed=0, threads=1)
+    dist = row["trajectory_distance"]
+    assert row["checks"]["trajectory"] == FAIL, f"{name} one step late passed: {dist}"
+    assert row["status"] == FAIL
+
+
+def test_exudyn_state_map_round_trips() -> None:
+    pytest.importorskip("exudyn")
+    from cip.exudyn import ExudynRollout
+
+    m = build("coupled", CIPParams())
+    b = ExudynRollout(m, 1, 1)
+    rng = np.random.default_rng(0)
+    s = rng.normal(size=1 + m.nq + m.nv) * 0.1
+    back = s.copy()
+    b.from_exudyn(*b.to_exudyn(s), back)
+    np.testing.assert_allclose(back, s, rtol=0, atol=1e-15)
+
+
+def test_exudyn_refuses_a_bob_of_finite_radius() -> None:
+    pytest.importorskip("exudyn")
+    from cip.exudyn import ExudynRollout
+    from cipcore.params import ParameterError
+
+    with pytest.raises(ParameterError, match="point mass"):
+        ExudynRollout(build("single", CIPParams(bob_radius=0.02)), 1, 1)
+
+
+def test_bullet_single_model_is_mujoco_to_rounding() -> None:
+    """Same scheme (semi-implicit Euler, explicit forces), no constraint: the same numbers."""
+    base = _engine("bullet").backend()
+    assert _rel(_run(base), _clean("mujoco", "single")) < 1e-12
+
+
+@pytest.mark.parametrize("name", FAMILIES)
+def test_import_banners_stay_off_stdout_and_stderr(name: str, tmp_path) -> None:
+    """Nothing on stdout or stderr, and no log file left in the working directory."""
+    _engine(name)
+    import os
+
+    code = (
+        "from cipcore.registry import get_engine; from cipcore.params import BalanceParams; "
+        f"get_engine({name!r}).simulate('coupled', BalanceParams(beta=20.306), 0.01, 1)"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=tmp_path, env=env)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == "" and done.stderr == "", (done.stdout, done.stderr)
+    assert os.listdir(tmp_path) == []
+
+
+def test_engines_json_stays_parseable_when_an_engine_prints_a_banner(tmp_path, capfd) -> None:
+    """warp announces its devices on stdout when first imported; ``--json`` keeps it out."""
+    import json
+
+    from validation.cli import main
+
+    rc = main(["engines", "--engines", "reduced,mujoco-warp", "--profile", "smoke", "--json",
+               "--out", str(tmp_path), "--no-figures"])  # fmt: skip
+    cap = capfd.readouterr()
+    assert cap.out.strip(), f"nothing on stdout; stderr: {cap.err[-500:]}"
+    res = json.loads(cap.out)
+    assert rc == 0 and [r["engine"] for r in res["engines"]] == ["reduced", "mujoco-warp"]
