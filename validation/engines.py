@@ -271,7 +271,8 @@ def markdown(results: dict[str, Any]) -> str:
     ]
     for r in results["engines"]:
         if r["status"] == "skipped":
-            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 12)
+            # 14 cells as the header: engine, verdict, 11 n/a, the reason in the last column
+            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 11)
                          + f" | skipped: {r['reason'].replace('|', '/')} |")  # fmt: skip
             continue
         c = r["capabilities"]

@@ -62,6 +62,28 @@ def _cell(text: str) -> str:
     return text if text.strip() else "n/a"
 
 
+def split_row(line: str) -> list[str]:
+    """The cells of one Markdown table row ``| a | b |`` (``\\|`` kept as a literal ``|``)."""
+    return [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line.strip().strip("|"))]
+
+
+def markdown_tables(md: str) -> list[list[list[str]]]:
+    """Every table of a Markdown text: rows of cells, the header first, the ``---`` row dropped."""
+    tables: list[list[list[str]]] = []
+    current: list[list[str]] | None = None
+    for line in md.splitlines():
+        if not line.startswith("|"):
+            current = None
+            continue
+        if current is None:
+            current = []
+            tables.append(current)
+        cells = split_row(line)
+        if not set("".join(cells)) <= set("-:"):
+            current.append(cells)
+    return tables
+
+
 def _row_cells(cells: list[Any]) -> str:
     return "| " + " | ".join(_fmt(c) for c in cells) + " |"
 
@@ -245,10 +267,7 @@ def html_report(md: str, out_dir: Path) -> str:
     in_table = False
     for line in md.splitlines():
         if line.startswith("|"):
-            cells = [
-                c.strip().replace("\\|", "|")
-                for c in re.split(r"(?<!\\)\|", line.strip().strip("|"))
-            ]
+            cells = split_row(line)
             if set("".join(cells)) <= {"-"}:
                 continue
             tag = "th" if not in_table else "td"
