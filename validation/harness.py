@@ -290,7 +290,12 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
                 out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
                             f"{r['amplitude']:g} m", "summary": f"{what}: largest |theta| "
                             f"{r['max_abs_angle']:.3g} rad (intended: the scan looks for the "
-                            "breakdown)"})  # fmt: skip
+                            "breakdown)", "intended": True})  # fmt: skip
+    if "RMS and velocity" in state:
+        from .divergence import rms_divergence
+
+        p = BalanceParams(beta=1.0)  # L = g / alpha does not depend on the gain
+        out += rms_divergence(state["RMS and velocity"][1], pendulum_length(p))
     if "rod-length study" in state:
         ds = state["rod-length study"][2]
         if "divergence_time" in ds:

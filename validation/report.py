@@ -19,6 +19,8 @@ import numpy as np
 
 from .baseline import compare_with_baseline as baseline_checks
 from .baseline import regression_numbers  # noqa: F401  (moved there; kept importable here)
+from .captions import figure_caption, settings_rows
+from .divergence import group_lines
 from .stats import Check
 
 
@@ -253,19 +255,46 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
             lines.append(
                 f"| {r['rod_length_ratio']:g} | {r['amplitude']:g} | " + " | ".join(cells) + " |"
             )
+    lines += divergence_section(results)
     if results["figures"]:
         lines += ["", "## Figures", ""]
-        lines += [f"![{f}]({f})" for f in results["figures"]]
-    lines += ["", "## Settings", "", "```json", json.dumps(jsonable(results["settings"]), indent=1),
-              "```", ""]  # fmt: skip
+        for k, f in enumerate(results["figures"], 1):
+            caption = figure_caption(f, results["settings"]).replace("\n", " ")
+            lines += [f"![Figure {k}: {f}]({f})", "", f"*Figure {k}.* {caption}", ""]
+    lines += ["", "## Settings", "", f"Profile {results['profile']}, grouped by the stage "
+              "that uses them (s, m, Hz as stated).", "", "| stage | settings |",
+              "|---|---|"]  # fmt: skip
+    lines += [_row_cells([g, v]) for g, v in settings_rows(jsonable(results["settings"]))]
+    lines.append("")
     return "\n".join(lines)
 
 
+def divergence_section(results: dict) -> list[str]:
+    """Where realisations diverged or left the small-angle regime, one line per stage."""
+    entries = results.get("divergence") or []
+    lines = ["", "## Divergence and departures from the small-angle regime", ""]
+    if not entries:
+        return [*lines, "No realisation of any stage diverged or left the small-angle regime."]
+    return lines + [f"- {line}" for line in group_lines(entries)]
+
+
+#: a figure's caption in the Markdown: the paragraph after its image, ``*Figure k.* text``
+_CAPTION = re.compile(r"^\*(Figure \d+\.)\* (.*)$")
+
+
 def html_report(md: str, out_dir: Path) -> str:
-    """A self-contained HTML page: the Markdown's tables and text, figures embedded."""
-    body = []
-    in_table = False
-    for line in md.splitlines():
+    """A self-contained HTML page: the Markdown's tables and text, figures embedded.
+
+    An image line ``![alt](file)`` followed by a caption paragraph
+    ``*Figure k.* text`` becomes one ``<figure>`` with that ``<figcaption>``.
+    """
+    body: list[str] = []
+    in_table = in_list = False
+    lines = md.splitlines()
+    skip: set[int] = set()
+    for i, line in enumerate(lines):
+        if i in skip:
+            continue
         if line.startswith("|"):
             cells = split_row(line)
             if set("".join(cells)) <= {"-"}:
@@ -284,27 +313,48 @@ def html_report(md: str, out_dir: Path) -> str:
         if in_table:
             body.append("</table>")
             in_table = False
+        if in_list and not line.startswith("- "):
+            body.append("</ul>")
+            in_list = False
         if line.startswith("!["):
-            name = line[line.index("(") + 1 : -1]
+            alt = line[2 : line.index("](")]
+            name = line[line.index("](") + 2 : -1]
             data = base64.b64encode((out_dir / name).read_bytes()).decode()
             mime = "image/gif" if name.endswith(".gif") else "image/png"
-            body.append(f'<figure><img src="data:{mime};base64,{data}" alt="{name}">'
-                        f"<figcaption>{html.escape(name)}</figcaption></figure>")  # fmt: skip
+            j = i + 1
+            while j < len(lines) and not lines[j].strip():
+                j += 1
+            m = _CAPTION.match(lines[j]) if j < len(lines) else None
+            if m:
+                skip.add(j)
+                cap = f"<b>{html.escape(m.group(1))}</b> {html.escape(m.group(2))}"
+            else:
+                cap = html.escape(alt)
+            body.append(f'<figure><img src="data:{mime};base64,{data}" alt="{html.escape(alt)}">'
+                        f"<figcaption>{cap}</figcaption></figure>")  # fmt: skip
         elif line.startswith("#"):
             level = len(line) - len(line.lstrip("#"))
             body.append(f"<h{level}>{html.escape(line.lstrip('# '))}</h{level}>")
         elif line.startswith("```"):
             body.append("<pre>" if line == "```json" else "</pre>")
+        elif line.startswith("- "):
+            if not in_list:
+                body.append("<ul>")
+                in_list = True
+            body.append(f"<li>{html.escape(line[2:])}</li>")
         elif line:
             text = html.escape(line).replace("**", "")
             body.append(f"<p>{text}</p>")
     if in_table:
         body.append("</table>")
+    if in_list:
+        body.append("</ul>")
     style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:"
              "collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
              "tr.pass td:nth-child(2){background:#d4f4d4}tr.fail td:nth-child(2)"
              "{background:#f8d0d0}tr.inconclusive td:nth-child(2){background:#f8f0c0}"
-             "img{max-width:100%}")  # fmt: skip
+             "img{max-width:100%}figure{margin:1.5em 0}figcaption{font-size:14px;"
+             "max-width:900px;color:#222;margin-top:4px}")  # fmt: skip
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>cipval report</title>"
             f"<style>{style}</style></head><body>{''.join(body)}</body></html>")  # fmt: skip
 

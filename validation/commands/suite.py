@@ -20,6 +20,7 @@ from ..cli_args import (
     interrupted_status,
     positive_int,
 )
+from ..divergence import group_lines
 from ..profiles import PROFILES
 
 
@@ -103,8 +104,8 @@ def cmd_run(a: argparse.Namespace) -> int:
                 results["status"] = "fail"
         write_reports(results, out, regression)
     print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
-    for d in results.get("divergence", []):
-        print(f"divergence: {d['stage']}, {d['run']}: {d['summary']}")
+    for line in group_lines(results.get("divergence", [])):
+        print(f"divergence: {line}")
     if regression is not None:
         nfail = sum(c.status == "fail" for c in regression)
         print(
