@@ -251,8 +251,8 @@ def clips(out_dir: Path, profile: Profile) -> list[Path]:
         cmd = [sys.executable, "-m", "validation.cli", "render", "--engine", "mujoco",
                "--model", "coupled", "--beta", str(PAPER_BETA["coupled"]),
                "--amplitude", str(amp), "--duration", str(profile.clip_duration),
-               "--seed", str(profile.seed), "--fps", "15", "--width", "320", "--height",
-               "200", "--out", str(path)]  # fmt: skip
+               "--seed", str(profile.seed), "--fps", "15", "--width", "640", "--height",
+               "400", "--out", str(path)]  # fmt: skip
         done = subprocess.run(cmd, env=env, capture_output=True, text=True)
         if done.returncode != 0 or not path.exists():
             why = (done.stderr.strip().splitlines() or ["no output"])[-1]
