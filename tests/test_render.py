@@ -48,7 +48,7 @@ def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys
 
     from validation.harness import clips
     from validation.profiles import PROFILES
-    from validation.report import html_report
+    from validation.report import figure_lines, html_report
 
     prof = dataclasses.replace(PROFILES["quick"], clip_duration=0.4)
     files = clips(tmp_path, prof)
@@ -64,9 +64,12 @@ def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys
     for f in files:
         with Image.open(f) as im:
             assert im.size == (640, 400)  # readable in the report
-    md = "\n".join(f"![{f.name}]({f.name})" for f in files)
+    md = "\n".join(figure_lines([f.name for f in files], prof.as_dict()))
     page = html_report(md, tmp_path)
     assert page.count('src="data:image/gif;base64,') == 2
+    assert page.count("<figcaption><b>Figure") == 2
+    assert "initial balancing error 0.001 m" in page and "inside the small-angle" in page
+    assert "initial balancing error 0.1 m" in page and "leaving the small-angle" in page
     assert clips(tmp_path, dataclasses.replace(prof, clip_duration=0.0)) == []
 
 

@@ -257,16 +257,22 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
             )
     lines += divergence_section(results)
     if results["figures"]:
-        lines += ["", "## Figures", ""]
-        for k, f in enumerate(results["figures"], 1):
-            caption = figure_caption(f, results["settings"]).replace("\n", " ")
-            lines += [f"![Figure {k}: {f}]({f})", "", f"*Figure {k}.* {caption}", ""]
+        lines += ["", "## Figures", "", *figure_lines(results["figures"], results["settings"])]
     lines += ["", "## Settings", "", f"Profile {results['profile']}, grouped by the stage "
               "that uses them (s, m, Hz as stated).", "", "| stage | settings |",
               "|---|---|"]  # fmt: skip
     lines += [_row_cells([g, v]) for g, v in settings_rows(jsonable(results["settings"]))]
     lines.append("")
     return "\n".join(lines)
+
+
+def figure_lines(names: list[str], settings: dict) -> list[str]:
+    """Markdown of the run's figures and clips: each image, then ``*Figure k.* caption``."""
+    lines = []
+    for k, f in enumerate(names, 1):
+        caption = figure_caption(f, settings).replace("\n", " ")
+        lines += [f"![Figure {k}: {f}]({f})", "", f"*Figure {k}.* {caption}", ""]
+    return lines
 
 
 def divergence_section(results: dict) -> list[str]:
