@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import re
 import shutil
 from pathlib import Path
 
@@ -53,6 +54,7 @@ def test_every_figure_has_a_caption_naming_the_run_and_the_paper_figure(smoke_ru
              "fig_velo.png": 7, "fig_scc.png": 8, "fig_sccpeak.png": 9,
              "fig_sccpeak_pdf.png": 10}  # fmt: skip
     assert results["figures"]
+    assert not re.search(r"Figs?\. (lLe|Be|pwsp|rms|velo|scc|sccpeak)\b|eq\. \(cabrera", md)
     for k, name in enumerate(results["figures"], 1):
         image = f"![Figure {k}: {name}]({name})"
         assert image in md
@@ -191,3 +193,17 @@ def test_report_in_chromium_shows_captioned_non_empty_figures(smoke_run, tmp_pat
             assert "intended (the scan looks for the breakdown)" in body
         finally:
             browser.close()
+
+
+def test_paper_labels_become_printed_numbers():
+    """Numbers from the order of the paper's captions (Fig. 4 is the one its text calls 4(a))."""
+    from validation.paper_refs import printed
+
+    assert printed("section 3.2, Figs. Be, rms") == "section 3.2, Figs. 4, 6"
+    assert printed("Fig. sccpeak:pdf (100 realisations)") == "Fig. 10 (100 realisations)"
+    assert printed("Fig. sccpeak: first") == "Fig. 9: first"
+    assert printed("section 4.3, Tab. STCC, Figs. stcc_s, stcc_c") == (
+        "section 4.3, Table 1, Figs. 14, 15"
+    )
+    assert printed("eq. (cabrera); eq. sss08:TM") == "eq. (1); eq. (5)"
+    assert printed("Fig. rmstau, fig_rms.png, Fig. 3") == "Fig. 16, fig_rms.png, Fig. 3"

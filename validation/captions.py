@@ -3,7 +3,7 @@
 A caption names the quantity drawn, the estimator, the run that made it
 (model, engine, realisations x duration, initial balancing error, seed) and
 the figure of the paper it redoes by the paper's printed number
-(:data:`PAPER_FIGURES`).  Every number comes from the run's settings (the
+(:data:`validation.paper_refs.PAPER_FIGURES`).  Every number comes from the run's settings (the
 profile as written to ``results.json``); a stage's noise is drawn from a
 stream derived from the profile's seed and a label (``Profile.seed_for``),
 so the caption gives the seed and the stream's label.
@@ -13,15 +13,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from .paper_refs import PAPER_FIGURES
 from .profiles import PAPER_BETA
-
-#: The paper's printed figure numbers (Yoshida, Higeta, Watanabe 2011): its
-#: figures in order are the photograph (1), the order reduction (2), lambda1
-#: against beta (3), the balancing errors (4), the spectra (5), the RMS (6), the
-#: velocity densities (7), the STCC at t = 36 (8), the first peak points (9)
-#: and their densities (10), then the experiment's (11 onwards).
-PAPER_FIGURES = {"lLe": 3, "Be": 4, "pwsp": 5, "rms": 6, "velo": 7, "scc": 8, "sccpeak": 9,
-                 "sccpeak:pdf": 10}  # fmt: skip
 
 
 def _paper(label: str, what: str) -> str:

@@ -37,7 +37,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def fig_lle(curve, points, bstar, path: Path) -> Path:
-    """Fig. lLe: lambda1 vs beta, reduced curve with 95 % band, MuJoCo points, beta*."""
+    """Fig. 3: lambda1 vs beta, reduced curve with 95 % band, MuJoCo points, beta*."""
     fig, ax = plt.subplots(figsize=(6.4, 4.2), constrained_layout=True)
     colours = {"single": "C0", "coupled": "C3"}
     for model, arr in curve.items():
@@ -63,7 +63,7 @@ def fig_lle(curve, points, bstar, path: Path) -> Path:
 
 
 def fig_be(series, path: Path) -> Path:
-    """Fig. Be: balancing error of one realisation, single and coupled, both engines."""
+    """Fig. 4: balancing error of one realisation, single and coupled, both engines."""
     fig, axes = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True, constrained_layout=True)
     for ax, model in zip(axes, MODEL_NAMES, strict=True):
         full, red = series[model]["full"], series[model]["reduced"]
@@ -81,7 +81,7 @@ def fig_be(series, path: Path) -> Path:
 
 
 def fig_pwsp(series, peaks, path: Path) -> Path:
-    """Fig. pwsp: power spectra of the balancing errors with the two-power-law fits."""
+    """Fig. 5: power spectra of the balancing errors with the two-power-law fits."""
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.8), constrained_layout=True)
     for ax, model in zip(axes, MODEL_NAMES, strict=True):
         d = peaks[f"pwsp_{model}"]
@@ -110,7 +110,7 @@ QUANTILE_BANDS = ((0.05, 0.95), (0.25, 0.75))
 
 
 def fig_rms(rms, path: Path, length: float) -> Path:
-    """Fig. rms: RMS of each realisation on a log axis, single vs coupled.
+    """Fig. 6: RMS of each realisation on a log axis, single vs coupled.
 
     Per model: the realisations (dots; crosses beyond the pendulum length
     ``length`` = L = g / alpha (m), where the stick has fallen: counted as
@@ -155,7 +155,7 @@ def fig_rms(rms, path: Path, length: float) -> Path:
 
 
 def fig_velo(rms, path: Path) -> Path:
-    """Fig. velo: ratio of velocity-error densities p(dq1/dt) / p(dx/dt)."""
+    """Fig. 7: ratio of velocity-error densities p(dq1/dt) / p(dx/dt)."""
     centres, ratio = rms["velo"]
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     ax.plot(centres, ratio, "o-", ms=3, label=r"$p(\dot{\Delta q}_1) / p(\dot{\Delta x})$, reduced")
@@ -169,7 +169,7 @@ def fig_velo(rms, path: Path) -> Path:
 
 
 def fig_scc(peaks, series, path: Path) -> Path:
-    """Fig. scc: STCC R(q_T', q_Mi') of the coupled model at t = 36 (Dt = 5)."""
+    """Fig. 8: STCC R(q_T', q_Mi') of the coupled model at t = 36 (Dt = 5)."""
     d = peaks["scc_coupled"]
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     ax.plot(d["lags"], d["R"], label=r"$R(\dot q_T, \dot q_{M1})$")
@@ -183,7 +183,7 @@ def fig_scc(peaks, series, path: Path) -> Path:
 
 
 def fig_sccpeak(peaks, path: Path) -> Path:
-    """Fig. sccpeak: first peak points tau_hat(t) for x, q1, q2 (one realisation)."""
+    """Fig. 9: first peak points tau_hat(t) for x, q1, q2 (one realisation)."""
     fig, axes = plt.subplots(3, 1, figsize=(7, 6.0), sharex=True, constrained_layout=True)
     rows = [("single", 0, r"$\hat\tau_{\dot x}$", r"single: $R(\dot x_T, \dot x_M)$"),
             ("coupled", 0, r"$\hat\tau_{\dot q_1}$", r"coupled: $R(\dot q_T, \dot q_{M1})$"),
@@ -205,7 +205,7 @@ def fig_sccpeak(peaks, path: Path) -> Path:
 
 
 def fig_sccpeak_pdf(peaks, series, path: Path) -> Path:
-    """Fig. sccpeak:pdf: densities of tau_hat, single vs coupled (reduced and MuJoCo)."""
+    """Fig. 10: densities of tau_hat, single vs coupled (reduced and MuJoCo)."""
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     for model, c, mk in (("single", "C0", "^"), ("coupled", "C3", "s")):
         d = peaks[f"peaks_{model}"]

@@ -21,6 +21,7 @@ from .baseline import compare_with_baseline as baseline_checks
 from .baseline import regression_numbers  # noqa: F401  (moved there; kept importable here)
 from .captions import figure_caption, settings_rows
 from .divergence import group_lines
+from .paper_refs import printed
 from .stats import Check
 
 
@@ -263,7 +264,7 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
               "|---|---|"]  # fmt: skip
     lines += [_row_cells([g, v]) for g, v in settings_rows(jsonable(results["settings"]))]
     lines.append("")
-    return "\n".join(lines)
+    return printed("\n".join(lines))  # the paper's labels as its printed numbers
 
 
 def figure_lines(names: list[str], settings: dict) -> list[str]:
