@@ -47,7 +47,7 @@ def fig_lle(curve, points, bstar, path: Path) -> Path:
                         label=f"reduced, {model}: 95 % CI")  # fmt: skip
         if model in bstar:
             ax.axvline(bstar[model].beta_star, color=colours[model], ls=":", lw=1,
-                       label=rf"$\beta^*$ {model} = {bstar[model].beta_star:.3g}")  # fmt: skip
+                       label=rf"$\beta^*$ {model} = {bstar[model].beta_star:.4g}")  # fmt: skip
     for row in points:
         f = row["full"]
         ax.errorbar(row["beta"], f["lambda1"], yerr=[[f["lambda1"] - f["ci95"][0]],

@@ -130,7 +130,8 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
         ax.set_xscale("log")
     ax.set_xlabel(LABELS.get(x, x))
     ax.set_ylabel(LABELS.get(metric, metric))
-    ax.set_title(title, fontsize=9)
+    what = LABELS.get(metric, metric).split(" (")[0]
+    ax.set_title(f"{what[0].upper()}{what[1:]}\n{title}", fontsize=9)
     ax.legend(fontsize=7)
     fig.savefig(path, dpi=110)
     plt.close(fig)
