@@ -107,7 +107,11 @@ def test_every_panel_has_a_title_and_a_legend_and_positive_axes(smoke_run, tmp_p
     assert ax.get_yscale() == "log"
     texts = [t.get_text() for t in ax.get_legend().get_texts()]
     assert any("beyond L (diverged" in t for t in texts)
-    assert {"median", "geometric mean", "central 50 % of realisations"} <= set(texts)
+    assert {
+        "geometric mean",
+        "central 50 % of realisations",
+        "central 90 % of realisations",
+    } <= set(texts)
     monkeypatch.undo()
     for fig in kept:
         plt.close(fig)

@@ -114,40 +114,45 @@ def fig_rms(rms, path: Path, length: float) -> Path:
 
     Per model: the realisations (dots; crosses beyond the pendulum length
     ``length`` = L = g / alpha (m), where the stick has fallen: counted as
-    diverged), the median (solid), the geometric mean (dashed) and the central
-    50 % and 90 % of the realisations (bands).  The paper draws the means of
-    the logarithms; the arithmetic mean of a heavy-tailed sample is not drawn.
+    diverged) and the median (solid line).  Beside them, one bar per model:
+    the central 50 % (thick) and 90 % (thin) of the realisations, the median
+    (black tick) and the geometric mean (diamond).  The paper draws the means
+    of the logarithms; the arithmetic mean of a heavy-tailed sample is not
+    drawn.
     """
     from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
 
     fig, ax = plt.subplots(figsize=(9.0, 4.2), constrained_layout=True)
     handles = []
-    n_max = 1
-    for model, c in (("single", "C0"), ("coupled", "C3")):
+    n_max = max(np.asarray(rms[m]["rms"]).size for m in ("single", "coupled"))
+    for k, (model, c) in enumerate((("single", "C0"), ("coupled", "C3"))):
         r = np.asarray(rms[model]["rms"], dtype=float)
-        n_max = max(n_max, r.size)
         idx = np.arange(r.size)
         fallen = ~(r <= length)  # NaN / inf count as diverged too
         ax.semilogy(idx[~fallen], r[~fallen], ".", color=c, ms=3)
         ax.semilogy(idx[fallen & np.isfinite(r)], r[fallen & np.isfinite(r)], "x", color=c, ms=4)
         fin = r[np.isfinite(r) & (r > 0)]
-        for (lo, hi), alpha in zip(QUANTILE_BANDS, (0.12, 0.25), strict=True):
-            ax.axhspan(*np.quantile(fin, [lo, hi]), color=c, alpha=alpha, lw=0)
-        ax.axhline(np.median(fin), color=c, lw=1.2)
-        ax.axhline(np.exp(np.mean(np.log(fin))), color=c, lw=1.2, ls="--")
+        med = np.median(fin)
+        ax.hlines(med, -0.5, n_max - 0.5, color=c, lw=1.2)
+        xb = n_max - 0.5 + n_max * (0.05 + 0.06 * k)  # the summary bar beside the points
+        (lo90, hi90), (lo50, hi50) = (np.quantile(fin, q) for q in QUANTILE_BANDS)
+        ax.vlines(xb, lo90, hi90, color=c, lw=2, alpha=0.6)
+        ax.vlines(xb, lo50, hi50, color=c, lw=8)
+        ax.plot([xb], [med], "_", color="k", ms=14, mew=2)
+        ax.plot([xb], [np.exp(np.mean(np.log(fin)))], "D", color="k", mfc="white", ms=5)
         label = f"{model}: {int(fallen.sum())} of {r.size} beyond L (diverged, x)"
         handles.append(Line2D([], [], color=c, marker=".", ls="", label=label))
     ax.axhline(length, color="k", lw=0.8, ls="-.")
-    style = [Line2D([], [], color="grey", lw=1.2, label="median"),
-             Line2D([], [], color="grey", lw=1.2, ls="--", label="geometric mean"),
-             Patch(color="grey", alpha=0.45, label="central 50 % of realisations"),
-             Patch(color="grey", alpha=0.2, label="central 90 % of realisations"),
+    style = [Line2D([], [], color="grey", lw=1.2, label="median (line; tick on the bar)"),
+             Line2D([], [], color="k", marker="D", mfc="white", ls="", label="geometric mean"),
+             Line2D([], [], color="grey", lw=8, label="central 50 % of realisations"),
+             Line2D([], [], color="grey", lw=2, alpha=0.6, label="central 90 % of realisations"),
              Line2D([], [], color="k", lw=0.8, ls="-.",
                     label=f"L = g/alpha = {length:.3g} m (stick fallen above)")]  # fmt: skip
     ax.legend(handles=handles + style, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    ax.set_xlim(-0.5, n_max - 0.5)
-    ax.set_xlabel("realisation")
+    ax.set_xlim(-0.5, n_max - 0.5 + n_max * 0.16)
+    ax.axvline(n_max - 0.5 + n_max * 0.02, color="grey", lw=0.5)
+    ax.set_xlabel("realisation (bars at the right: single, coupled)")
     ax.set_ylabel("RMS of balancing error (m, log axis)")
     ax.set_title("RMS of the balancing error, one point per realisation (reduced model)",
                  fontsize=10)  # fmt: skip
