@@ -75,6 +75,11 @@ def test_report_tables_are_well_formed_and_settings_compact(smoke_run):
     md = (out / "report.md").read_text()
     for table in markdown_tables(md):
         assert all(len(row) == len(table[0]) for row in table), table[0]
+    (rod,) = [t for t in markdown_tables(md) if t[0][0] == "l / L"]
+    for row in rod[1:]:
+        for cell in row[2:4]:  # largest |theta| and the distance: positive, heavy-tailed
+            med, lo, hi = map(float, re.fullmatch(r"(\S+) \[(\S+), (\S+)\]", cell).groups())
+            assert 0 <= lo <= med <= hi, cell
     settings = md.split("## Settings", 1)[1]
     assert "```" not in settings and settings.count("\n|") <= 16  # a table, not a JSON dump
     assert "| rod-length study |" in settings and "seed = 2011" in settings

@@ -147,7 +147,8 @@ def figure_caption(name: str, settings: dict[str, Any]) -> str:
     if name.startswith("fig_rod_length_"):
         metric = name[len("fig_rod_length_") : -len(".png")]
         st = _rod_study(s)
-        what = {"max_angle": "largest |theta| (rad) a realisation reached",
+        what = {"max_angle": "largest |theta| (rad) a realisation reached (a pole that fell and "
+                             "turned over is drawn at pi)",
                 "agreement": "relative L2 distance of the balancing error to the reduced model "
                              "(first 10 s)"}.get(metric, metric)  # fmt: skip
         amps = _seq(st["grid"].get("amplitude", ()))
