@@ -172,9 +172,10 @@ def _clip(s: dict[str, Any], k: int) -> str:
     return (
         f"Clip: the coupled rigid-body CIP simulated by MuJoCo {where}: initial balancing "
         f"error {amps[k]:g} m, beta = {PAPER_BETA['coupled']}, {s.get('clip_duration', 0):g} s, "
-        f"seed {s['seed']}, 15 frames/s. The overlay gives the time, both angles theta1, "
-        "theta2 (rad), the balancing errors Delta q1, Delta q2 (m), the engine and model, and "
-        "whether the run is inside the small-angle regime. No figure of the paper."
+        f"seed {s['seed']} (realisation 0), 15 frames/s. The overlay gives the time, both "
+        "angles theta1, theta2 (rad), the balancing errors Delta q1, Delta q2 (m), the engine "
+        "and model, and whether the run is inside the small-angle regime. No figure of the "
+        "paper."
     )
 
 
