@@ -101,7 +101,7 @@ def test_every_panel_has_a_title_and_a_legend_and_positive_axes(smoke_run, tmp_p
         axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
         for ax in axes:
             assert ax.get_title() or fig._suptitle is not None, path.name
-            legend = ax.get_legend()
+            legend = ax.get_legend() or (fig.legends[0] if fig.legends else None)
             assert legend is not None and legend.get_texts(), f"{path.name}: no legend"
         for ax in axes:
             lo, hi = ax.get_ylim()

@@ -83,7 +83,10 @@ def figure_caption(name: str, settings: dict[str, Any]) -> str:
             "Power spectrum S(f) (m^2/Hz) of the balancing error, single (left) and coupled "
             f"(right): Welch estimate with {s['peak_duration'] / 4:g} s segments, mean over "
             f"realisations, of the {long}; the broken line (dashed) is the two-power-law fit "
-            "whose slopes the panel titles give. The thin lines are the small-amplitude "
+            "to that mean, whose slopes the panel titles give. The mean is set by the largest "
+            "realisations (the RMS spans decades): the grey bands give the realisations' "
+            "central 50 % and 90 % and the black line their median at each frequency. The "
+            "thin lines are the small-amplitude "
             f"spectra of both engines ({s['spectrum_segment']:g} s segments; {small}), scaled "
             "to the long run's mean power to compare shapes. "
             + _paper("pwsp", "the two power-law regimes")

@@ -82,10 +82,17 @@ def fig_be(series, path: Path) -> Path:
 
 def fig_pwsp(series, peaks, path: Path) -> Path:
     """Fig. 5: power spectra of the balancing errors with the two-power-law fits."""
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4.4), constrained_layout=True)
     for ax, model in zip(axes, MODEL_NAMES, strict=True):
         d = peaks[f"pwsp_{model}"]
-        ax.loglog(d["f"], d["S"], lw=0.8, label="reduced (long run)")
+        ax.loglog(d["f"], d["S"], lw=0.8, label="reduced (long run), mean")
+        if "S_quantiles" in d:  # the realisations' spread: median, central 50 % and 90 %
+            q = d["S_quantiles"]
+            ax.fill_between(d["f"], q[0], q[4], color="grey", alpha=0.15, lw=0,
+                            label="long run: central 90 %")  # fmt: skip
+            ax.fill_between(d["f"], q[1], q[3], color="grey", alpha=0.3, lw=0,
+                            label="long run: central 50 %")  # fmt: skip
+            ax.loglog(d["f"], q[2], color="k", lw=0.6, label="long run: median")
         for eng, key in (("reduced", "metrics_reduced"), ("MuJoCo", "metrics_full")):
             f, s = series[model][key].spectrum
             ax.loglog(f, s.mean(axis=0) / s.mean() * d["S"].mean(), lw=0.8, alpha=0.7,
@@ -99,9 +106,12 @@ def fig_pwsp(series, peaks, path: Path) -> Path:
                       label="two-power-law fit" if slope == fit.slope_low else None)  # fmt: skip
         ax.set_title(f"{model}: slopes {fit.slope_low:.2f}, {fit.slope_high:.2f}", fontsize=9)
         ax.set_xlabel("f (Hz)")
-        ax.legend(fontsize=7)
     axes[0].set_ylabel(r"$S$ (m$^2$/Hz)")
-    fig.suptitle("Power spectra of the balancing error (mean over realisations)", fontsize=10)
+    # one legend for both panels (the same line styles), below them
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncol=4,
+               fontsize=7)  # fmt: skip
+    fig.suptitle("Power spectra of the balancing error: mean over realisations (fitted) and "
+                 "the realisations' spread", fontsize=10)  # fmt: skip
     return _save(fig, path)
 
 
