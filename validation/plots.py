@@ -131,6 +131,7 @@ def fig_rms(rms, path: Path, length: float) -> Path:
     drawn.
     """
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import MaxNLocator
 
     fig, ax = plt.subplots(figsize=(9.0, 4.2), constrained_layout=True)
     handles = []
@@ -162,6 +163,8 @@ def fig_rms(rms, path: Path, length: float) -> Path:
     ax.legend(handles=handles + style, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_xlim(-0.5, n_max - 0.5 + n_max * 0.16)
     ax.axvline(n_max - 0.5 + n_max * 0.02, color="grey", lw=0.5)
+    ticks = MaxNLocator(nbins=8, integer=True).tick_values(0, n_max - 1)
+    ax.set_xticks([t for t in ticks if 0 <= t <= n_max - 1])  # realisations only, not the bars
     ax.set_xlabel("realisation (bars at the right: single, coupled)")
     ax.set_ylabel("RMS of balancing error (m, log axis)")
     ax.set_title("RMS of the balancing error, one point per realisation (reduced model)",
