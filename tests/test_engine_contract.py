@@ -163,6 +163,20 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
     assert m["throughput"]["ratio_to_mujoco"] == 1.0
     assert 0 < m["trajectory_distance"]["coupled"] < 1e-2
     assert (tmp_path / "report.md").read_text().count("| mujoco |") == 1
+    assert_tables_well_formed((tmp_path / "report.md").read_text())
+
+
+def assert_tables_well_formed(md: str) -> None:
+    """Every row of every Markdown table has the header's cell count, no cell empty."""
+    from validation.report import markdown_tables
+
+    tables = markdown_tables(md)
+    assert tables
+    for table in tables:
+        head = table[0]
+        for row in table[1:]:
+            assert len(row) == len(head), (head, row)
+            assert all(c.strip() for c in row), row
 
 
 def test_engines_command_rejects_an_unknown_engine(capsys) -> None:
@@ -181,3 +195,8 @@ def test_an_absent_engine_is_listed_as_skipped_with_the_reason(monkeypatch) -> N
     res = compare_engines(["absent"], "smoke")
     (row,) = res["engines"]
     assert row["status"] == "skipped" and "cipval_no_such_module" in row["reason"]
+    from validation.engines import markdown
+
+    md = markdown(res)
+    assert_tables_well_formed(md)
+    assert "cipval_no_such_module" in md.split("| absent | skipped |")[1].splitlines()[0]

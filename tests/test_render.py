@@ -48,7 +48,7 @@ def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys
 
     from validation.harness import clips
     from validation.profiles import PROFILES
-    from validation.report import html_report
+    from validation.report import figure_lines, html_report
 
     prof = dataclasses.replace(PROFILES["quick"], clip_duration=0.4)
     files = clips(tmp_path, prof)
@@ -59,7 +59,39 @@ def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys
         "clip_inside_small_angle.gif",
         "clip_outside_small_angle.gif",
     ]
-    md = "\n".join(f"![{f.name}]({f.name})" for f in files)
+    from PIL import Image
+
+    for f in files:
+        with Image.open(f) as im:
+            assert im.size == (640, 400)  # readable in the report
+    md = "\n".join(figure_lines([f.name for f in files], prof.as_dict()))
     page = html_report(md, tmp_path)
     assert page.count('src="data:image/gif;base64,') == 2
+    assert page.count("<figcaption><b>Figure") == 2
+    assert "initial balancing error 0.001 m" in page and "inside the small-angle" in page
+    assert "initial balancing error 0.1 m" in page and "leaving the small-angle" in page
     assert clips(tmp_path, dataclasses.replace(prof, clip_duration=0.0)) == []
+
+
+def test_clip_overlay_names_time_angles_errors_engine_and_regime():
+    """The overlay's text per frame, and that it is drawn (no OpenGL needed)."""
+    from cipcore.schema import Trajectory
+    from validation.animation import draw_overlay, overlay_lines
+
+    t = np.array([0.0, 0.5, 1.0])
+    th = np.array([[[0.01, -0.02], [0.1, 0.05], [2.0, 0.3]]])  # inside, outside, fallen
+    tr = Trajectory(t, {"balancing_error": 0.446 * np.sin(th), "angle": th}, {"dt": 0.001})
+    pos = np.stack([np.zeros_like(th[0]), th[0]], axis=-1)
+    text = overlay_lines(tr, pos, 0, "mujoco", "coupled")
+    assert [r for _, r in text] == ["inside", "outside", "fallen"]
+    lines = text[1][0]
+    assert lines[0].startswith("t =   0.50 s") and "mujoco, coupled model" in lines[0]
+    assert "theta1 = +0.1000 rad" in lines[1] and "theta2 = +0.0500 rad" in lines[1]
+    assert "Delta q1 = +4.453e-02 m" in lines[2] and "Delta q2" in lines[2]
+    assert lines[3].startswith("OUTSIDE the small-angle regime")
+    frame = np.full((400, 640, 3), 200, dtype=np.uint8)
+    drawn = draw_overlay(frame, *text[0])
+    assert drawn.shape == frame.shape
+    box = drawn[:100, :300].astype(int)
+    assert (np.abs(box - 200) > 50).mean() > 0.2  # a dark box with text on it
+    assert np.array_equal(drawn[300:], frame[300:])  # the scene below is untouched

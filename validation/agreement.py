@@ -540,6 +540,11 @@ def rod_length_study(
                 m, h = mean_ci(ds, metric)
                 row[metric] = float(m.sel(sel))
                 row[metric + "_ci95"] = float(h.sel(sel))
+                v = ds[metric].sel(sel).values.astype(float)  # heavy-tailed: also quantiles
+                v = v[np.isfinite(v)]
+                row[metric + "_q05_50_95"] = (
+                    np.quantile(v, (0.05, 0.5, 0.95)).tolist() if v.size else None
+                )
         rows.append(row)
     return checks, rows, ds
 

@@ -91,6 +91,71 @@ def render_frames(
     return frames
 
 
+def overlay_lines(
+    tr: Trajectory, positions: np.ndarray, realization: int, engine: str, model: str
+) -> list[tuple[list[str], str]]:
+    """Per frame: the overlay's text lines and the regime it names.
+
+    Lines: the time (s); the angles theta_i (rad); the balancing errors
+    (Delta x for one controller, Delta q_i for two; m); the engine and model;
+    whether every angle is inside the small-angle regime |theta| <= theta_s
+    (:func:`cip.model.small_angle_limit`), outside it, or fallen (|theta| >
+    pi/2).  The regime is one of "inside", "outside", "fallen".
+    """
+    from cip.model import small_angle_limit
+
+    limit = small_angle_limit()
+    e = np.asarray(tr["balancing_error"][realization], dtype=float)
+    n_c = positions.shape[1]
+    names = ["Delta x"] if n_c == 1 else [f"Delta q{i + 1}" for i in range(n_c)]
+    out = []
+    for k in range(positions.shape[0]):
+        th = positions[k, :, 1]
+        largest = float(np.max(np.abs(th)))
+        if largest > np.pi / 2:
+            regime, text = "fallen", "FALLEN: |theta| > pi/2"
+        elif largest > limit:
+            regime, text = "outside", f"OUTSIDE the small-angle regime (|theta| > {limit:.3g} rad)"
+        else:
+            regime, text = "inside", f"inside the small-angle regime (|theta| <= {limit:.3g} rad)"
+        lines = [
+            f"t = {float(tr.time[k]):6.2f} s      engine {engine}, {model} model",
+            "   ".join(f"theta{i + 1} = {th[i]:+.4f} rad" for i in range(n_c)),
+            "   ".join(f"{names[i]} = {e[k, i]:+.3e} m" for i in range(n_c)),
+            text,
+        ]
+        out.append((lines, regime))
+    return out
+
+
+#: overlay colour of each regime's line (RGB)
+REGIME_COLOURS = {"inside": (120, 230, 120), "outside": (255, 190, 60), "fallen": (255, 90, 90)}
+
+
+def draw_overlay(frame: np.ndarray, lines: list[str], regime: str) -> np.ndarray:
+    """``frame`` (H, W, 3) uint8 with ``lines`` on a dark box at the top left.
+
+    The last line (the regime) is drawn in the regime's colour
+    (:data:`REGIME_COLOURS`); the font is matplotlib's DejaVu Sans, sized to
+    the frame (about 1/26 of its height).
+    """
+    from matplotlib import font_manager
+    from PIL import Image, ImageDraw, ImageFont
+
+    img = Image.fromarray(frame).convert("RGBA")
+    size = max(9, round(frame.shape[0] / 26))
+    font = ImageFont.truetype(font_manager.findfont("DejaVu Sans"), size)
+    layer = Image.new("RGBA", img.size, (0, 0, 0, 0))
+    draw = ImageDraw.Draw(layer)
+    pad, step = 6, round(size * 1.3)
+    width = max(draw.textlength(t, font=font) for t in lines)
+    draw.rectangle((0, 0, width + 2 * pad, pad * 2 + step * len(lines)), fill=(0, 0, 0, 150))
+    for j, t in enumerate(lines):
+        colour = REGIME_COLOURS[regime] if j == len(lines) - 1 else (255, 255, 255)
+        draw.text((pad, pad + j * step), t, font=font, fill=(*colour, 255))
+    return np.asarray(Image.alpha_composite(img, layer).convert("RGB"))
+
+
 def check_video_path(option: str, path: str | Path) -> Path:
     """``path`` ends in .gif or .mp4 (.mp4 needs ffmpeg on PATH)."""
     import shutil

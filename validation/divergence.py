@@ -20,6 +20,7 @@ The data up to that time are kept as computed; these functions only report.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -167,3 +168,59 @@ def divergence_times(events: list[Event], n_realizations: int, first: int = 0) -
         if e.kind == DIVERGED and e.time is not None:
             out[e.realization - first] = e.time
     return out
+
+
+def rms_divergence(rms: dict, length: float, limit: int = 10) -> list[dict]:
+    """The realisations whose RMS balancing error exceeds the pendulum length L.
+
+    ``rms`` maps a model name to ``{"rms": array (R,)}`` (m); ``length`` is
+    L = g / alpha (m).  A linear model's error can grow without bound, but a
+    stick whose balancing error e = L sin(theta) is beyond L on average (RMS)
+    has fallen: those realisations are listed as diverged (non-finite RMS
+    too).  Returns entries of the run's divergence list (stage, run, summary,
+    realizations), one per model with any.
+    """
+    out = []
+    for model, d in rms.items():
+        if not isinstance(d, dict) or "rms" not in d:
+            continue
+        r = np.asarray(d["rms"], dtype=float)
+        bad = np.flatnonzero(~(r <= length))
+        if not bad.size:
+            continue
+        shown = ", ".join(str(i) for i in bad[:limit]) + (", ..." if bad.size > limit else "")
+        fin = r[np.isfinite(r)]
+        largest = f"; largest RMS {fin.max():.3g} m" if fin.size else ""
+        out.append({"stage": "RMS and velocity", "run": f"{model} reduced",
+                    "summary": f"{bad.size} of {r.size} realisations {DIVERGED}: RMS of the "
+                    f"balancing error beyond L = {length:.3g} m (the stick would have fallen; "
+                    f"the linear model goes on): realisations {shown}{largest}",
+                    "realizations": bad.tolist()})  # fmt: skip
+    return out
+
+
+def group_lines(entries: list[dict]) -> list[str]:
+    """The run's divergence list as one line per stage.
+
+    Entries marked ``"intended": True`` (runs that leave the small-angle regime on
+    purpose, such as the amplitude scan looking for the breakdown) share one
+    line per stage, which says so; the others are listed per stage, each run
+    with its summary.
+    """
+    by: dict[tuple[str, bool], list[dict]] = {}
+    for e in entries:
+        by.setdefault((e["stage"], bool(e.get("intended"))), []).append(e)
+    lines = []
+    for (stage, intended), ev in by.items():
+        if intended:
+            why = re.search(r"\(intended: ([^)]*)\)", ev[0]["summary"])
+            parts = [f"{e['run']} {re.sub(r' ?[(]intended:[^)]*[)]', '', e['summary'])}"
+                     for e in ev]  # fmt: skip
+            lines.append(f"{stage}, intended ({why.group(1) if why else 'on purpose'}), "
+                         f"{len(ev)} runs: " + "; ".join(parts))  # fmt: skip
+        elif len(ev) == 1:
+            lines.append(f"{stage}, {ev[0]['run']}: {ev[0]['summary']}")
+        else:
+            lines.append(f"{stage}, {len(ev)} runs: "
+                         + "; ".join(f"{e['run']}: {e['summary']}" for e in ev))  # fmt: skip
+    return lines

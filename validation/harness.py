@@ -326,8 +326,8 @@ def clips(out_dir: Path, profile: Profile) -> list[Path]:
         cmd = [sys.executable, "-m", "validation.cli", "render", "--engine", "mujoco",
                "--model", "coupled", "--beta", str(PAPER_BETA["coupled"]),
                "--amplitude", str(amp), "--duration", str(profile.clip_duration),
-               "--seed", str(profile.seed), "--fps", "15", "--width", "320", "--height",
-               "200", "--out", str(path)]  # fmt: skip
+               "--seed", str(profile.seed), "--fps", "15", "--width", "640", "--height",
+               "400", "--out", str(path)]  # fmt: skip
         done = subprocess.run(cmd, env=env, capture_output=True, text=True)
         if done.returncode != 0 or not path.exists():
             why = (done.stderr.strip().splitlines() or ["no output"])[-1]
@@ -365,7 +365,12 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
                 out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
                             f"{r['amplitude']:g} m", "summary": f"{what}: largest |theta| "
                             f"{r['max_abs_angle']:.3g} rad (intended: the scan looks for the "
-                            "breakdown)"})  # fmt: skip
+                            "breakdown)", "intended": True})  # fmt: skip
+    if "RMS and velocity" in state:
+        from .divergence import rms_divergence
+
+        p = BalanceParams(beta=1.0)  # L = g / alpha does not depend on the gain
+        out += rms_divergence(state["RMS and velocity"][1], pendulum_length(p))
     if "rod-length study" in state:
         ds = state["rod-length study"][2]
         if "divergence_time" in ds:

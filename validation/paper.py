@@ -576,6 +576,8 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
         f, s = metrics.power_spectrum(sets[m]["e"], dt, segment=profile.peak_duration / 4)
         data[f"pwsp_{m}"] = {"f": f, "S": s.mean(axis=0),
                              "fit": metrics.PowerLawFit(**sp[m])}  # fmt: skip
+        # the realisations' spread (the mean is set by the largest ones): for the figure
+        data[f"pwsp_{m}"]["S_quantiles"] = np.quantile(s, (0.05, 0.25, 0.5, 0.75, 0.95), axis=0)
     sset = (f"{profile.peak_realizations} x {profile.peak_duration:g} s, Welch "
             f"{profile.peak_duration / 4:g} s segments, broken-line fit "
             f"{max(0.05, 16 / profile.peak_duration):.3g}-20 Hz")  # fmt: skip

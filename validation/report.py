@@ -20,6 +20,9 @@ from cipcore.atomic import write_text
 
 from .baseline import compare_with_baseline as baseline_checks
 from .baseline import regression_numbers  # noqa: F401  (moved there; kept importable here)
+from .captions import figure_caption, settings_rows
+from .divergence import group_lines
+from .paper_refs import printed
 from .stats import Check
 
 
@@ -58,6 +61,28 @@ def _cell(text: str) -> str:
     """Escape ``|`` so that a cell cannot break its Markdown table; never empty."""
     text = str(text).replace("\\|", "|").replace("|", "\\|").replace("\n", " ")
     return text if text.strip() else "n/a"
+
+
+def split_row(line: str) -> list[str]:
+    """The cells of one Markdown table row ``| a | b |`` (``\\|`` kept as a literal ``|``)."""
+    return [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line.strip().strip("|"))]
+
+
+def markdown_tables(md: str) -> list[list[list[str]]]:
+    """Every table of a Markdown text: rows of cells, the header first, the ``---`` row dropped."""
+    tables: list[list[list[str]]] = []
+    current: list[list[str]] | None = None
+    for line in md.splitlines():
+        if not line.startswith("|"):
+            current = None
+            continue
+        if current is None:
+            current = []
+            tables.append(current)
+        cells = split_row(line)
+        if not set("".join(cells)) <= set("-:"):
+            current.append(cells)
+    return tables
 
 
 def _row_cells(cells: list[Any]) -> str:
@@ -219,36 +244,76 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
             "",
             "## Rod-length study (MuJoCo, coupled, same noise at every point)",
             "",
+            "Per point: the median over realisations [5 %, 95 % of them] (these quantities are "
+            "heavy-tailed; a mean with its interval would cross 0), or the mean +- its 95 % "
+            "half-width where the run kept no quantiles.",
+            "",
             "| l / L | initial error (m) | largest abs theta (rad) | rel. L2 to reduced | "
             "log10 RMS | median tau_hat (s) |",
             "|---|---|---|---|---|---|",
         ]
         for r in results["rod_length"]:
-            cells = [
-                _fmt(r.get(k)) + (f" +- {r[k + '_ci95']:.2g}" if k + "_ci95" in r else "")
-                for k in ("max_angle", "agreement", "rms", "tau_hat")
-            ]
+            cells = [_spread(r, k) for k in ("max_angle", "agreement", "rms", "tau_hat")]
             lines.append(
                 f"| {r['rod_length_ratio']:g} | {r['amplitude']:g} | " + " | ".join(cells) + " |"
             )
+    lines += divergence_section(results)
     if results["figures"]:
-        lines += ["", "## Figures", ""]
-        lines += [f"![{f}]({f})" for f in results["figures"]]
-    lines += ["", "## Settings", "", "```json", json.dumps(jsonable(results["settings"]), indent=1),
-              "```", ""]  # fmt: skip
-    return "\n".join(lines)
+        lines += ["", "## Figures", "", *figure_lines(results["figures"], results["settings"])]
+    lines += ["", "## Settings", "", f"Profile {results['profile']}, grouped by the stage "
+              "that uses them (s, m, Hz as stated).", "", "| stage | settings |",
+              "|---|---|"]  # fmt: skip
+    lines += [_row_cells([g, v]) for g, v in settings_rows(jsonable(results["settings"]))]
+    lines.append("")
+    return printed("\n".join(lines))  # the paper's labels as its printed numbers
+
+
+def _spread(row: dict, key: str) -> str:
+    """``median [q05, q95]`` of a rod-length row's metric, else ``mean +- half-width``."""
+    q = row.get(key + "_q05_50_95")
+    if q and all(v is not None for v in q):
+        return f"{q[1]:.3g} [{q[0]:.3g}, {q[2]:.3g}]"
+    ci = row.get(key + "_ci95")
+    return _fmt(row.get(key)) + (f" +- {ci:.2g}" if ci is not None else "")
+
+
+def figure_lines(names: list[str], settings: dict) -> list[str]:
+    """Markdown of the run's figures and clips: each image, then ``*Figure k.* caption``."""
+    lines = []
+    for k, f in enumerate(names, 1):
+        caption = figure_caption(f, settings).replace("\n", " ")
+        lines += [f"![Figure {k}: {f}]({f})", "", f"*Figure {k}.* {caption}", ""]
+    return lines
+
+
+def divergence_section(results: dict) -> list[str]:
+    """Where realisations diverged or left the small-angle regime, one line per stage."""
+    entries = results.get("divergence") or []
+    lines = ["", "## Divergence and departures from the small-angle regime", ""]
+    if not entries:
+        return [*lines, "No realisation of any stage diverged or left the small-angle regime."]
+    return lines + [f"- {line}" for line in group_lines(entries)]
+
+
+#: a figure's caption in the Markdown: the paragraph after its image, ``*Figure k.* text``
+_CAPTION = re.compile(r"^\*(Figure \d+\.)\* (.*)$")
 
 
 def html_report(md: str, out_dir: Path) -> str:
-    """A self-contained HTML page: the Markdown's tables and text, figures embedded."""
-    body = []
-    in_table = False
-    for line in md.splitlines():
+    """A self-contained HTML page: the Markdown's tables and text, figures embedded.
+
+    An image line ``![alt](file)`` followed by a caption paragraph
+    ``*Figure k.* text`` becomes one ``<figure>`` with that ``<figcaption>``.
+    """
+    body: list[str] = []
+    in_table = in_list = False
+    lines = md.splitlines()
+    skip: set[int] = set()
+    for i, line in enumerate(lines):
+        if i in skip:
+            continue
         if line.startswith("|"):
-            cells = [
-                c.strip().replace("\\|", "|")
-                for c in re.split(r"(?<!\\)\|", line.strip().strip("|"))
-            ]
+            cells = split_row(line)
             if set("".join(cells)) <= {"-"}:
                 continue
             tag = "th" if not in_table else "td"
@@ -265,27 +330,48 @@ def html_report(md: str, out_dir: Path) -> str:
         if in_table:
             body.append("</table>")
             in_table = False
+        if in_list and not line.startswith("- "):
+            body.append("</ul>")
+            in_list = False
         if line.startswith("!["):
-            name = line[line.index("(") + 1 : -1]
+            alt = line[2 : line.index("](")]
+            name = line[line.index("](") + 2 : -1]
             data = base64.b64encode((out_dir / name).read_bytes()).decode()
             mime = "image/gif" if name.endswith(".gif") else "image/png"
-            body.append(f'<figure><img src="data:{mime};base64,{data}" alt="{name}">'
-                        f"<figcaption>{html.escape(name)}</figcaption></figure>")  # fmt: skip
+            j = i + 1
+            while j < len(lines) and not lines[j].strip():
+                j += 1
+            m = _CAPTION.match(lines[j]) if j < len(lines) else None
+            if m:
+                skip.add(j)
+                cap = f"<b>{html.escape(m.group(1))}</b> {html.escape(m.group(2))}"
+            else:
+                cap = html.escape(alt)
+            body.append(f'<figure><img src="data:{mime};base64,{data}" alt="{html.escape(alt)}">'
+                        f"<figcaption>{cap}</figcaption></figure>")  # fmt: skip
         elif line.startswith("#"):
             level = len(line) - len(line.lstrip("#"))
             body.append(f"<h{level}>{html.escape(line.lstrip('# '))}</h{level}>")
         elif line.startswith("```"):
             body.append("<pre>" if line == "```json" else "</pre>")
+        elif line.startswith("- "):
+            if not in_list:
+                body.append("<ul>")
+                in_list = True
+            body.append(f"<li>{html.escape(line[2:])}</li>")
         elif line:
             text = html.escape(line).replace("**", "")
             body.append(f"<p>{text}</p>")
     if in_table:
         body.append("</table>")
+    if in_list:
+        body.append("</ul>")
     style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:"
              "collapse;font-size:13px}td,th{border:1px solid #ccc;padding:3px 6px}"
              "tr.pass td:nth-child(2){background:#d4f4d4}tr.fail td:nth-child(2)"
              "{background:#f8d0d0}tr.inconclusive td:nth-child(2){background:#f8f0c0}"
-             "img{max-width:100%}")  # fmt: skip
+             "img{max-width:100%}figure{margin:1.5em 0}figcaption{font-size:14px;"
+             "max-width:900px;color:#222;margin-top:4px}")  # fmt: skip
     return (f"<!doctype html><html><head><meta charset='utf-8'><title>cipval report</title>"
             f"<style>{style}</style></head><body>{''.join(body)}</body></html>")  # fmt: skip
 

@@ -20,6 +20,7 @@ from ..cli_args import (
     interrupted_status,
     positive_int,
 )
+from ..divergence import group_lines
 from ..profiles import PROFILES
 
 
@@ -112,8 +113,8 @@ def cmd_run(a: argparse.Namespace) -> int:
                         "--resume to write the reports")  # fmt: skip
             raise
     print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
-    for d in results.get("divergence", []):
-        print(f"divergence: {d['stage']}, {d['run']}: {d['summary']}")
+    for line in group_lines(results.get("divergence", [])):
+        print(f"divergence: {line}")
     if regression is not None:
         nfail = sum(c.status == "fail" for c in regression)
         print(

@@ -88,7 +88,14 @@ def check_frames(a: argparse.Namespace, pixels: bool = True) -> None:
 
 
 def cmd_render(a: argparse.Namespace) -> int:
-    from ..animation import check_video_path, choose_gl_backend, render_frames, write_video
+    from ..animation import (
+        check_video_path,
+        choose_gl_backend,
+        draw_overlay,
+        overlay_lines,
+        render_frames,
+        write_video,
+    )
 
     out = check_out_file("--out", a.out, (".gif", ".mp4"))
     check_video_path("--out", out)
@@ -107,6 +114,8 @@ def cmd_render(a: argparse.Namespace) -> int:
         return subprocess.run(cmd, env=env).returncode
     tr, mj_model, pos, decimate = _simulate(a)
     frames = render_frames(mj_model, pos, a.width, a.height)
+    text = overlay_lines(tr, pos, a.realization, tr.attrs.get("engine") or a.engine, a.model)
+    frames = [draw_overlay(f, *text[k]) for k, f in enumerate(frames)]
     fps = 1.0 / (decimate * tr.attrs["dt"])
     write_video(frames, out, fps)
     shown = len(frames) / fps

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import textwrap
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -63,11 +64,36 @@ def median_ci(ds, name: str, seed: int = 0):
     return tuple(xr.DataArray(v, dims=a.dims[:-1], coords=coords) for v in (est, lo, hi))
 
 
+#: metrics that are never negative and heavy-tailed over realisations: drawn as the median
+#: with the central 50 % and 90 % of the realisations (a mean +- CI band would cross 0)
+QUANTILE_METRICS = {"max_angle", "agreement", "tau_hat", "divergence_time"}
+
+
+def _lines(a, x: str, others: list[str]):
+    """(label, DataArray over (x[, realization])) per combination of the other swept values."""
+    if not others:
+        return [("", a)]
+    st = a.stack(line=others)
+    out = []
+    for k in range(st.sizes["line"]):
+        vals = np.atleast_1d(st["line"].values[k])
+        label = ", ".join(f"{d}={v}" for d, v in zip(others, vals, strict=False))
+        out.append((label, st.isel(line=k)))
+    return out
+
+
 def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
-    """A metric against one swept parameter, one line per value of the others: the median
-    over realisations with its bootstrap 95 % band (a per-point quantity: its value, with
-    its ``_ci_low`` / ``_ci_high`` band when the dataset has one).  Axes carry the
-    variables' ``long_name [units]``."""
+    """A metric against one swept parameter, one line per value of the others.
+
+    Metrics in :data:`QUANTILE_METRICS` (positive, heavy-tailed): the median
+    over realisations with the central 50 % and 90 % of them as bands, on a
+    log axis where the medians span more than a decade, angles capped at pi
+    (the pendulum's largest |theta|); the realisations that diverged
+    (``divergence_time`` finite) are counted per line in the legend.  Other
+    per-realisation metrics: the median with its bootstrap 95 % band; a
+    per-point quantity: its value, with its ``_ci_low`` / ``_ci_high`` band when
+    the dataset has one.  Axes carry the variables' ``long_name [units]``.
+    """
     from ..plots import plt
     from .attrs import label
 
@@ -79,27 +105,58 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
         dims = [d for d in ds.dims if d != "realization"]
         raise ParameterError(f"--x: {x!r} is not a swept parameter; swept: {', '.join(dims)}")
     per = "realization" in ds[metric].dims
-    if per:
-        m, lo, hi = median_ci(ds, metric)
-    elif f"{metric}_ci_low" in ds:
-        m, lo, hi = ds[metric], ds[f"{metric}_ci_low"], ds[f"{metric}_ci_high"]
-    else:
-        m, lo, hi = ds[metric], ds[metric] * np.nan, ds[metric] * np.nan
-    others = [d for d in m.dims if d != x]
+    quantiles = metric in QUANTILE_METRICS and per
+    others = [d for d in ds[metric].dims if d not in (x, "realization")]
     fig, ax = plt.subplots(figsize=(6.4, 4.0), constrained_layout=True)
-
-    def lines(a):
-        return a.stack(line=others) if others else a.expand_dims(line=[0])
-
-    sm, slo, shi = lines(m), lines(lo), lines(hi)
     xs = ds[x].values
-    for k in range(sm.sizes["line"]):
-        y = sm.isel(line=k).transpose(x).values
-        vals = np.atleast_1d(sm["line"].values[k])
-        name = ", ".join(f"{d}={v}" for d, v in zip(others, vals, strict=False)) or metric
-        ax.plot(xs, y, "o-", ms=3, label=name)
-        ax.fill_between(xs, slo.isel(line=k).transpose(x).values,
-                        shi.isel(line=k).transpose(x).values, alpha=0.2)  # fmt: skip
+    n = ds.sizes.get("realization", 1)
+    if quantiles:
+        div = ds["divergence_time"] if "divergence_time" in ds else None
+        div_lines = dict(_lines(div, x, others)) if div is not None else {}
+        medians = []
+        for name, a in _lines(ds[metric], x, others):
+            v = a.transpose(x, "realization").values.astype(float)
+            with warnings.catch_warnings():  # all-NaN points (every run diverged)
+                warnings.simplefilter("ignore", RuntimeWarning)
+                q = np.nanquantile(v, [0.05, 0.25, 0.5, 0.75, 0.95], axis=1)
+            if metric == "max_angle":
+                q = np.minimum(q, np.pi)
+            ndiv = ""
+            if name in div_lines:
+                k = int(np.isfinite(div_lines[name].values).sum())
+                ndiv = f" ({k} of {v.size} runs diverged)"
+            (line,) = ax.plot(xs, q[2], "o-", ms=3, label=(name or metric) + ndiv)
+            ax.fill_between(xs, q[0], q[4], color=line.get_color(), alpha=0.12, lw=0)
+            ax.fill_between(xs, q[1], q[3], color=line.get_color(), alpha=0.28, lw=0)
+            medians.append(q[2])
+        med = np.concatenate(medians)
+        med = med[np.isfinite(med) & (med > 0)]
+        if med.size and med.max() / med.min() > 10:
+            ax.set_yscale("log")
+        else:
+            ax.set_ylim(bottom=0.0)
+        if metric == "max_angle":
+            ax.axhline(np.pi / 2, color="k", lw=0.7, ls="-.", label="|theta| = pi/2: fallen")
+            ax.set_ylim(top=np.pi)
+        ax.fill_between([], [], [], color="grey", alpha=0.28, label="central 50 %")
+        ax.fill_between([], [], [], color="grey", alpha=0.12, label="central 90 %")
+        what = f"median over {n} realisations, central 50 % and 90 % bands"
+    else:
+        if per:
+            m, lo, hi = median_ci(ds, metric)
+            what = f"median over {n} realisations, bootstrap 95 % band"
+        elif f"{metric}_ci_low" in ds:
+            m, lo, hi = ds[metric], ds[f"{metric}_ci_low"], ds[f"{metric}_ci_high"]
+            what = "per grid point, bootstrap 95 % band"
+        else:
+            m, lo, hi = ds[metric], ds[metric] * np.nan, ds[metric] * np.nan
+            what = "per grid point"
+        for (name, y), (_, yl), (_, yh) in zip(
+            _lines(m, x, others), _lines(lo, x, others), _lines(hi, x, others), strict=True
+        ):
+            (line,) = ax.plot(xs, y.transpose(x).values, "o-", ms=3, label=name or metric)
+            ax.fill_between(xs, yl.transpose(x).values, yh.transpose(x).values,
+                            color=line.get_color(), alpha=0.2)  # fmt: skip
     if (
         np.issubdtype(np.asarray(xs).dtype, np.number)
         and np.all(xs > 0)
@@ -108,9 +165,6 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
         ax.set_xscale("log")
     ax.set_xlabel(label(x, dict(ds[x].attrs)))
     ax.set_ylabel(textwrap.fill(label(metric, dict(ds[metric].attrs)), 42), fontsize=9)
-    n = ds.sizes.get("realization", 1)
-    what = (f"median over realisations, bootstrap 95% band ({n} realisations)" if per
-            else "per grid point, bootstrap 95% band")  # fmt: skip
     ax.set_title(what, fontsize=8)
     ax.legend(fontsize=7)
     write_with(path, lambda tmp: fig.savefig(tmp, dpi=110, format=Path(path).suffix[1:]))
