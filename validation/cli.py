@@ -2,10 +2,12 @@
 
 Subcommands are thin: they parse, check every input, call the library, and
 print.  One module per command group (:mod:`validation.commands`), shared
-argument helpers in :mod:`validation.cli_args`.  Exit status: 0 when no check
-fails, 1 when a validation check fails, 2 for a usage error (one line
-``cip-validate: error: ...`` naming the parameter and its allowed range),
-130 / 143 after SIGINT / SIGTERM (finished work kept).
+argument helpers in :mod:`validation.cli_args`.  Exit status
+(:mod:`validation.exitcodes`): 0 when no check fails, 1 when a validation check
+fails, 2 for a usage error (one line ``cip-validate: error: ...`` naming the
+parameter and its allowed range), 3 when a regression number moved, 4 when
+the engine crashed (partial results kept), 130 / 143 after SIGINT / SIGTERM
+(finished work kept).
 """
 
 from __future__ import annotations
