@@ -124,6 +124,9 @@ def test_exit_4_when_the_engine_crashes_with_partial_results_naming_the_stage(
     assert r["partial"] is True and r["stages_done"] == ["lambda1 agreement"]
     assert r["crashed"]["stage"] == "time-series agreement"
     assert "engine returned garbage" in r["crashed"]["error"]
+    from validation.schemas import validate
+
+    validate(r, "run")  # a partial, crashed results.json follows the run schema too
     fails = [c for c in ET.parse(junit).getroot().iter("testcase") if c.find("failure")
              is not None]  # fmt: skip
     assert [c.get("name") for c in fails] == ["stage.time-series agreement"]

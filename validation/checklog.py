@@ -16,7 +16,15 @@ import math
 import re
 from typing import Any
 
-__all__ = ["DERIVED_KEYS", "check_table", "check_tolerance", "check_value", "regression_log"]
+__all__ = [
+    "DERIVED_KEYS",
+    "check_table",
+    "check_tolerance",
+    "check_value",
+    "regression_log",
+    "tolerance_limit",
+    "with_limit",
+]
 
 #: Leaves of a check's values derived from its primary numbers (intervals, standard
 #: errors, margins, the comparison's own z): listed only with ``--verbose``.
@@ -154,6 +162,47 @@ def check_tolerance(c: dict) -> str:
     if m:
         return f"{m.group(1)} {m.group(3)}"
     return text[:40] + ("..." if len(text) > 40 else "")
+
+
+def tolerance_limit(c: dict) -> dict | None:
+    """The check's tolerance as a number: ``{"on": what is bounded, "limit": bound}`` (the
+    bound holds on the absolute value; units those of the quantity), None where the rule has
+    no single number (e.g. every amplitude of a scan must disagree)."""
+    v = c.get("values", {})
+    if v.get("margin") is not None:
+        return {"on": "difference_ci95", "limit": float(v["margin"])}
+    if "half_width_1" in v and v["half_width_1"] is not None:
+        return {"on": "difference", "limit": float(max(v["half_width_1"], v["half_width_2"]))}
+    sub = _worst_sub(v)
+    if sub is not None:
+        name, d = sub
+        if d.get("margin") is not None:
+            return {"on": f"{name}.difference_ci95", "limit": float(d["margin"])}
+        if d.get("floor") is not None:
+            return {"on": f"{name}.difference_mean - difference_ci95", "limit": float(d["floor"])}
+    if isinstance(v.get("slope_low"), dict) and "z" in v["slope_low"]:
+        return {"on": "z", "limit": 2.0}
+    if "expected_steps" in v:
+        return {"on": "measured_steps - expected_steps", "limit": 0.0}
+    text = c.get("tolerance", "")
+    m = re.search(r"to (\d[\d.]*e[-+]?\d+) relative", text)
+    if m:
+        return {"on": "relative mismatch", "limit": float(m.group(1))}
+    m = _LIMIT.search(text)
+    if m and m.group(1) in ("<=", "<"):
+        num = m.group(3)
+        limit = float(num[:-1]) / 100 if num.endswith("%") else float(num)
+        keys = ("stretch_relative_l2", "relative_l2", "value")
+        on = next((k for k in keys if k in v), "relative_l2" if num.endswith("%") else "value")
+        if "paper" in v:
+            on = "value - paper"
+        return {"on": on, "limit": limit}
+    return None
+
+
+def with_limit(c: dict) -> dict:
+    """The check dict with its numeric ``tolerance_limit`` (:func:`tolerance_limit`)."""
+    return {**c, "tolerance_limit": tolerance_limit(c)}
 
 
 def check_table(checks: list[dict], extra: list[tuple[str, str, str, str]] = ()) -> str:

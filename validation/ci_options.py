@@ -13,7 +13,7 @@ import argparse
 import os
 import sys
 
-__all__ = ["add_ci_options", "progress_enabled"]
+__all__ = ["add_ci_options", "progress_enabled", "run_environment"]
 
 
 def progress_enabled(quiet: bool = False) -> bool:
@@ -42,3 +42,14 @@ def add_ci_options(p: argparse.ArgumentParser, verbose: bool = True) -> None:
             help="list every moved regression number, derived ones (intervals, "
             "standard errors, margins) included",
         )
+
+
+def run_environment() -> dict:
+    """``versions``, ``platform`` and the numerics ``fingerprint`` for a JSON output."""
+    import platform
+
+    from .fingerprint import numerics_fingerprint
+    from .versions import package_versions
+
+    return {"versions": package_versions(), "platform": platform.platform(),
+            "fingerprint": numerics_fingerprint()}  # fmt: skip

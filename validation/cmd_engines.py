@@ -8,7 +8,8 @@ import sys
 
 from cipcore.registry import engine_names
 
-from .cli_args import check_out_dir
+from .ci_options import add_ci_options, run_environment
+from .cli_args import check_out_dir, check_out_file
 from .engines import ENGINE_PROFILES, compare_engines, parse_engines, write_engine_reports
 
 EXIT_OK, EXIT_FAIL = 0, 1
@@ -21,13 +22,24 @@ def cmd_engines(a: argparse.Namespace) -> int:
 
         raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
     out = check_out_dir("--out", a.out)  # checked before any work
-    say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
+    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    quiet = a.json or a.quiet
+    say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
     results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
     write_engine_reports(results, out, figures=not a.no_figures)
+    if junit:
+        from .junit import engines_cases, write_junit
+
+        write_junit(engines_cases(results), junit)
     if a.json:
+        from . import engines as cross
         from .report import jsonable
 
-        print(json.dumps(jsonable(results)))
+        tolerances = {"scan_agreement_relative_l2": cross.SCAN_AGREEMENT,
+                      "nonlinear_growth": cross.NONLINEAR_GROWTH,
+                      "rod_mismatch": cross.ROD_TOLERANCE}  # fmt: skip
+        doc = {"cipval_engines": 1, **results, "tolerances": tolerances, **run_environment()}
+        print(json.dumps(jsonable(doc)))
     else:
         for r in results["engines"]:
             if r["status"] == "skipped":
@@ -62,4 +74,5 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="cip-engines-out", help="output directory")
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    add_ci_options(p, verbose=False)
     p.set_defaults(func=cmd_engines)

@@ -38,6 +38,7 @@ from tqdm.auto import tqdm
 from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper, plots
+from .checklog import with_limit
 from .fingerprint import numerics_fingerprint
 from .profiles import Profile
 from .report import write_json
@@ -379,7 +380,7 @@ def _results(
         "settings": profile.as_dict(),
         "status": FAIL if counts[FAIL] else (INCONCLUSIVE if counts[INCONCLUSIVE] else PASS),
         "counts": counts,
-        "checks": [ch.as_dict() for ch in checks],
+        "checks": [with_limit(ch.as_dict()) for ch in checks],
         "paper": paper_rows,
         "robustness": robust,
         "nonlinear": nonlinear,
