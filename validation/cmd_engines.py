@@ -16,7 +16,14 @@ EXIT_OK, EXIT_FAIL = 0, 1
 
 
 def cmd_engines(a: argparse.Namespace) -> int:
-    names = parse_engines(a.engines)
+    from .commands.contract import register_engine_cmd
+
+    cmd_engine = register_engine_cmd(a.engine_cmd)
+    if cmd_engine is not None:  # the reference, MuJoCo (the speed baseline) and the command
+        names = [n for n in parse_engines(a.engines or "reduced,mujoco") if n != cmd_engine]
+        names.append(cmd_engine)
+    else:
+        names = parse_engines(a.engines)
     if a.threads is not None and a.threads < 1:
         from cipcore.params import ParameterError
 
@@ -75,4 +82,7 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     add_ci_options(p, verbose=False)
+    from .commands.contract import add_engine_cmd_arg
+
+    add_engine_cmd_arg(p)
     p.set_defaults(func=cmd_engines)
