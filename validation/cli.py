@@ -19,7 +19,7 @@ from cipcore.params import ParameterError
 
 from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
 from .cmd_engines import add_engines_command
-from .commands import analysis, contract, simulation, suite, sweeping, viewing
+from .commands import analysis, case, contract, simulation, suite, sweeping, viewing
 from .experiment import cli as experiment_cli
 from .selftest import register_selftest
 
@@ -52,6 +52,7 @@ def build_parser() -> CLIParser:
     viewing.register(sub)
     add_engines_command(sub)
     contract.register(sub)
+    case.register(sub)
     experiment_cli.register(sub)
     register_selftest(sub)
     return parser

@@ -154,7 +154,11 @@ def run_validation(
     After each stage, ``DIR/results.json`` holds everything finished so far
     (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
     On KeyboardInterrupt (SIGINT, or SIGTERM turned into one by the CLI) raises
-    :class:`RunInterrupted` naming the stages kept.
+    :class:`RunInterrupted` naming the stages kept; when a stage raises (an
+    engine crash) writes ``results.json`` partial with ``"crashed"`` and raises
+    :class:`StageCrashed`.  A script calling this needs an
+    ``if __name__ == "__main__":`` guard: the rod-length stage's process pool
+    (forkserver) imports the main module in its workers.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
