@@ -165,3 +165,17 @@ def test_progress_bars_only_on_a_terminal(monkeypatch):
     assert progress_enabled(quiet=True) is False
     monkeypatch.setenv("TQDM_DISABLE", "1")
     assert progress_enabled() is False
+
+
+def test_selftest_junit_has_the_unmodified_model_and_each_fault(tmp_path, capsys):
+    junit = tmp_path / "s.xml"
+    assert main(["selftest", "--faults", "gravity", "--junit", str(junit), "--quiet"]) == 0
+    cases = [c.get("name") for c in ET.parse(junit).getroot().iter("testcase")]
+    assert cases == ["unmodified_model", "fault.gravity"]
+
+
+def test_an_engine_crash_in_engines_is_exit_4(tmp_path, capsys):
+    dead = f"{__import__('sys').executable} -c 'import sys; sys.exit(5)'"
+    assert main(["engines", "--engine-cmd", dead, "--engines", "reduced", "--profile", "smoke",
+                 "--no-figures", "--quiet", "--out", str(tmp_path)]) == 4  # fmt: skip
+    assert "exited with status 5" in capsys.readouterr().err

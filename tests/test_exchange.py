@@ -49,10 +49,13 @@ def test_an_engine_that_dies_is_a_crash_not_a_failure(capsys):
 
 
 def test_engines_command_validates_an_engine_cmd(tmp_path, capsys):
+    junit = tmp_path / "e.xml"
     code = main(["engines", "--engine-cmd", CMD, "--profile", "smoke", "--json",
-                 "--no-figures", "--out", str(tmp_path)])  # fmt: skip
+                 "--no-figures", "--out", str(tmp_path), "--junit", str(junit)])  # fmt: skip
     doc = json.loads(capsys.readouterr().out)
     rows = {r["engine"]: r for r in doc["engines"]}
     assert set(rows) == {"reduced", "mujoco", "command"}
     assert code == 0 and rows["command"]["status"] == "pass"
     assert rows["command"]["trajectory_distance"] == rows["mujoco"]["trajectory_distance"]
+    suites = {s.get("name") for s in ET.parse(junit).getroot().iter("testsuite")}
+    assert suites == {"engines.reduced", "engines.mujoco", "engines.command"}

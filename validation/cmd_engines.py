@@ -32,7 +32,13 @@ def cmd_engines(a: argparse.Namespace) -> int:
     junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
     quiet = a.json or a.quiet
     say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
-    results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    try:
+        results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
+        from .exitcodes import EXIT_CRASH
+
+        print(f"cip-validate: an engine crashed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_CRASH
     write_engine_reports(results, out, figures=not a.no_figures)
     if junit:
         from .junit import engines_cases, write_junit

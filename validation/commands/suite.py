@@ -157,7 +157,11 @@ def cmd_baseline(a: argparse.Namespace) -> int:
         with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
             try:
                 results = run_validation(
-                    PROFILES[a.profile], Path(tmp), workers=a.workers, progress=True, figures=False
+                    PROFILES[a.profile],
+                    Path(tmp),
+                    workers=a.workers,
+                    progress=progress_enabled(),
+                    figures=False,
                 )
             except RunInterrupted:
                 name, status = interrupted_status(got)

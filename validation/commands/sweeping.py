@@ -10,6 +10,7 @@ from pathlib import Path
 from cipcore.models import MODEL_NAMES
 from cipcore.params import ParameterError
 
+from ..ci_options import progress_enabled
 from ..cli_args import (
     EXIT_OK,
     add_engine_arg,
@@ -71,7 +72,7 @@ def cmd_sweep(a: argparse.Namespace) -> int:
                 out,
                 workers=a.workers,
                 scheduler=a.scheduler,
-                progress=True,
+                progress=progress_enabled(),
                 on_point=finished.append,
                 wait_for_lock=a.wait,
             )
