@@ -179,3 +179,19 @@ def test_an_engine_crash_in_engines_is_exit_4(tmp_path, capsys):
     assert main(["engines", "--engine-cmd", dead, "--engines", "reduced", "--profile", "smoke",
                  "--no-figures", "--quiet", "--out", str(tmp_path)]) == 4  # fmt: skip
     assert "exited with status 5" in capsys.readouterr().err
+
+
+def test_a_baseline_of_other_model_files_is_refused_before_the_run(canned, tmp_path, capsys):
+    from validation.fingerprint import model_digests
+
+    base = json.loads(BASELINE.read_text())
+    base["fingerprint"] = {"model_digests": {**model_digests(), "coupled": "0123456789abcdef"}}
+    f = tmp_path / "base.json"
+    f.write_text(json.dumps(base))
+    code, _, err = _run(capsys, "run", "--out", str(tmp_path / "o"), "--baseline", str(f))
+    assert code == 2 and err.count("\n") == 1 and "model files differ (coupled)" in err
+    # named explicitly, the comparison runs and says so
+    canned["results"]["fingerprint"] = {"model_digests": model_digests()}
+    code, out, _ = _run(capsys, "run", "--out", str(tmp_path / "o"), "--baseline", str(f),
+                        "--baseline-mode", "statistical")  # fmt: skip
+    assert code == 0 and "statistical mode (requested (model files differ (coupled)" in out

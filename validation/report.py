@@ -191,13 +191,15 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
             "",
             "## Regression against the baseline",
             "",
-            "| number | status | value | baseline | z |",
-            "|---|---|---|---|---|",
+            "| number | status | value | baseline | change | tolerance |",
+            "|---|---|---|---|---|---|",
         ]
         for c in regression:
             v = c.values
+            rel = _fmt(v.get("relative_change"), "n/a (baseline 0 or NaN)")
+            change = f"z = {_fmt(v['z'])}" if "z" in v else f"relative {rel}"
             lines.append(f"| {c.name} | {c.status} | {_fmt(v.get('value'))} | "
-                         f"{_fmt(v.get('baseline'))} | {_fmt(v.get('z'))} |")  # fmt: skip
+                         f"{_fmt(v.get('baseline'))} | {change} | {c.tolerance} |")  # fmt: skip
     lines += paper_section(results)
     lines += ["", "## Amplitude scan (full vs reduced, same noise)", "",
               "| model | initial error (m) | largest abs theta (rad) | rel. L2 | trajectory | RMS "
