@@ -217,6 +217,9 @@ def run_validation(
     except KeyboardInterrupt:
         bar.close()
         raise RunInterrupted(list(done), out_dir) from None
+    except ParameterError:  # bad input found inside a stage: a usage error, not a crash
+        bar.close()
+        raise
     except Exception as exc:  # the engine crashed inside a stage: keep what finished
         bar.close()
         _write_crash(out_dir, name, exc, _results(profile, state, timings, workers, t0,
