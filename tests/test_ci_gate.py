@@ -88,8 +88,14 @@ def test_exit_3_when_a_regression_number_moves_grouped_with_relative_change(
             c["values"]["se"] *= 1.01
     f = tmp_path / "base.json"
     f.write_text(json.dumps(base))
-    code, out, _ = _run(capsys, "run", "--out", str(tmp_path / "o"), "--baseline", str(f))
+    junit = tmp_path / "r.xml"
+    code, out, _ = _run(capsys, "run", "--out", str(tmp_path / "o"), "--baseline", str(f),
+                        "--junit", str(junit))  # fmt: skip
     assert code == exitcodes.EXIT_REGRESSION == 3
+    reg = ET.parse(junit).getroot().find("testsuite[@name='run.regression']")
+    names = [c.get("name") for c in reg.iter("testcase")]
+    assert names == ["regression (roundoff mode)", "regression.paper.beta_star.single.se",
+                     "regression.paper.beta_star.single.value"]  # fmt: skip
     # same versions, the baseline records no CPU fingerprint: every number at round-off
     assert "roundoff mode" in out and "within tolerance" in out
     assert "paper.beta_star.single: 2 number(s) moved" in out

@@ -31,7 +31,8 @@ def _classname(name: str) -> str:
 
 
 def run_cases(results: dict, regression: Iterable[Any] = (), suite: str = "run") -> list[Case]:
-    """One case per check of a ``run`` results dict, and per moved regression number."""
+    """One case per check of a ``run`` results dict; with a baseline, one case for the
+    regression comparison and one failure per moved number."""
     out: list[Case] = []
     for c in results.get("checks", []):
         msg = f"{c['status']}: {c.get('tolerance', '')}"
@@ -49,19 +50,17 @@ def run_cases(results: dict, regression: Iterable[Any] = (), suite: str = "run")
                 crash.get("traceback", ""),
             )
         )
-    for c in regression:
-        d = c.as_dict() if hasattr(c, "as_dict") else c
-        det = json.dumps(d.get("values", {}), default=str)
-        out.append(
-            (
-                f"{suite}.regression",
-                _classname(d["name"]),
-                d["name"],
-                _status(d["status"]),
-                f"{d['status']}: {d.get('tolerance', '')}",
-                det,
-            )
-        )
+    reg = [c.as_dict() if hasattr(c, "as_dict") else c for c in regression]
+    if reg:  # one case for the comparison, one failure per moved number
+        moved = [d for d in reg if d["status"] == "fail"]
+        mode = (results.get("regression") or {}).get("mode", "")
+        out.append((f"{suite}.regression", "regression", f"regression ({mode} mode)".strip(),
+                    "fail" if moved else "pass",
+                    f"{len(moved)} of {len(reg)} numbers moved beyond tolerance", ""))  # fmt: skip
+        for d in moved:
+            det = json.dumps(d.get("values", {}), default=str)
+            out.append((f"{suite}.regression", _classname(d["name"]), d["name"], "fail",
+                        f"moved: {d.get('tolerance', '')}", det))  # fmt: skip
     return out
 
 
