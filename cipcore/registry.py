@@ -35,10 +35,23 @@ _loaded: dict[str, Engine] = {}
 _import_errors: dict[str, str] = {}
 
 
+#: engines registered at run time (:func:`register_engine`), e.g. an ``--engine-cmd`` process
+_runtime: dict[str, Engine] = {}
+
+
+def register_engine(name: str, engine: Engine) -> None:
+    """Register an engine object under ``name`` for this process (after the static entries)."""
+    _runtime[name] = engine
+    _loaded[name] = engine
+    _import_errors.pop(name, None)
+
+
 def _entries() -> dict[str, str]:
     entries = dict(ENGINES)
     for ep in entry_points(group="cipval.engines"):
         entries.setdefault(ep.name, ep.value)
+    for name in _runtime:
+        entries.setdefault(name, f"<registered at run time: {name}>")
     return entries
 
 

@@ -74,6 +74,17 @@ def test_baseline_regression_passes_on_itself_and_fails_on_a_moved_number(smoke_
         assert bad == ["regression.agreement.trajectory.single.relative_l2"]
 
 
+def test_results_follow_the_run_schema_with_numeric_tolerances(smoke_run):
+    from validation.schemas import validate
+
+    _, out = smoke_run
+    results = json.loads((out / "results.json").read_text())
+    validate(results, "run")
+    limits = {c["name"]: c["tolerance_limit"] for c in results["checks"]}
+    assert limits["twin.trajectory.single"] == {"on": "relative_l2", "limit": 1e-9}
+    assert sum(v is not None for v in limits.values()) >= len(limits) - 2
+
+
 def test_baseline_command_and_wrong_baseline_is_usage_error(smoke_run, tmp_path, capsys):
     _, out = smoke_run
     base = tmp_path / "base.json"

@@ -135,14 +135,42 @@ def test_paired_rules_use_the_paired_uncertainty():
     assert paired_shift(base + 1e-6, base, floor=1e-9)[0] == "fail"
 
 
-def test_baseline_mode_follows_versions_and_platform():
-    from validation.baseline import choose_mode
+def test_baseline_mode_follows_what_changes_numbers_not_the_kernel_string():
+    from validation.baseline import BaselineMismatch, choose_mode
 
-    a = {"versions": {"mujoco": "4.0.0"}, "platform": "x"}
-    assert choose_mode(a, a)[0] == "exact"
-    b = {"versions": {"mujoco": "3.5.0"}, "platform": "x"}
+    fp = {"machine": "x86_64", "cpu_flags": ["avx2", "fma"], "numpy_build": {"blas": "b"},
+          "model_digests": {"single": "1", "coupled": "2"}}  # fmt: skip
+    a = {"versions": {"mujoco": "4.0.0"}, "platform": "Linux-6.1-x86_64", "fingerprint": fp}
+    other_kernel = {**a, "platform": "Linux-6.18.44-fc-v782-x86_64"}
+    assert choose_mode(a, other_kernel)[0] == "exact"
+    no_fma = {**a, "fingerprint": {**fp, "cpu_flags": ["avx2"]}}
+    mode, why = choose_mode(a, no_fma)
+    assert mode == "roundoff" and "+fma" in why
+    old = {"versions": {"mujoco": "4.0.0"}, "platform": "y"}  # no fingerprint recorded
+    assert choose_mode(a, old)[0] == "roundoff"
+    b = {"versions": {"mujoco": "3.5.0"}, "platform": "x", "fingerprint": fp}
     mode, why = choose_mode(a, b)
     assert mode == "statistical" and "mujoco 3.5.0 -> 4.0.0" in why
+    other_model = {**a, "fingerprint": {**fp, "model_digests": {"single": "1", "coupled": "3"}}}
+    with pytest.raises(BaselineMismatch, match="model files differ \\(coupled\\)"):
+        choose_mode(a, other_model)
+    mode, why = choose_mode(a, other_model, "statistical")
+    assert mode == "statistical" and "model files differ" in why
+
+
+def test_roundoff_mode_compares_every_number_to_its_stated_tolerance():
+    from validation.baseline import ROUNDOFF_RTOL, all_numbers, compare_with_baseline
+
+    base = {"checks": [{"name": "c", "values": {"x": 1.0, "d": 3e-15, "measured_steps": 100}}]}
+    near = {"checks": [{"name": "c", "values": {"x": 1.0 + ROUNDOFF_RTOL / 2, "d": -2e-15,
+                                                 "measured_steps": 100}}]}  # fmt: skip
+    far = {"checks": [{"name": "c", "values": {"x": 1.0 + 3 * ROUNDOFF_RTOL, "d": 3e-15,
+                                                "measured_steps": 101}}]}  # fmt: skip
+    ok = compare_with_baseline(near, base, "roundoff")
+    assert len(ok) == len(all_numbers(base)) == 3 and all(c.status == "pass" for c in ok)
+    bad = [c.name for c in compare_with_baseline(far, base, "roundoff") if c.status == "fail"]
+    assert bad == ["regression.c.measured_steps", "regression.c.x"]
+    assert [c.status for c in compare_with_baseline(near, base, "exact")].count("fail") == 2
 
 
 def test_selftest_cli(capsys):

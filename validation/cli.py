@@ -2,10 +2,13 @@
 
 Subcommands are thin: they parse, check every input, call the library, and
 print.  One module per command group (:mod:`validation.commands`), shared
-argument helpers in :mod:`validation.cli_args`.  Exit status: 0 when no check
-fails, 1 when a validation check fails, 2 for a usage error (one line
-``cip-validate: error: ...`` naming the parameter and its allowed range),
-130 / 143 after SIGINT / SIGTERM (finished work kept).  An output that cannot be
+argument helpers in :mod:`validation.cli_args`.  Exit status
+(:mod:`validation.exitcodes`): 0 when no check fails, 1 when a validation check
+fails, 2 for a usage error (one line ``cip-validate: error: ...`` naming the
+parameter and its allowed range), 3 when a regression number moved, 4 when
+the engine crashed (partial results kept), 130 / 143 after SIGINT / SIGTERM
+(finished work kept).
+An output that cannot be
 written (full disk, read-only file system, quota) is also exit 2, one line naming
 the file; outputs are written atomically (:mod:`cipcore.atomic`), so nothing is
 left under its name, and the line says where finished work was kept or what was lost.
@@ -21,7 +24,7 @@ from cipcore.params import ParameterError
 
 from .cli_args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
 from .cmd_engines import add_engines_command
-from .commands import analysis, simulation, suite, sweeping, viewing
+from .commands import analysis, case, contract, simulation, suite, sweeping, viewing
 from .experiment import cli as experiment_cli
 from .selftest import register_selftest
 
@@ -53,6 +56,8 @@ def build_parser() -> CLIParser:
     sweeping.register(sub)
     viewing.register(sub)
     add_engines_command(sub)
+    contract.register(sub)
+    case.register(sub)
     experiment_cli.register(sub)
     register_selftest(sub)
     return parser

@@ -9,30 +9,58 @@ import sys
 from cip.quiet import stdout_to_stderr
 from cipcore.registry import engine_names
 
-from .cli_args import add_threads_arg, check_out_dir, nonnegative_int
+from .ci_options import add_ci_options, run_environment
+from .cli_args import add_threads_arg, check_out_dir, check_out_file, nonnegative_int
 from .engines import ENGINE_PROFILES, compare_engines, parse_engines, write_engine_reports
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
 
 def cmd_engines(a: argparse.Namespace) -> int:
-    names = parse_engines(a.engines)
+    from .commands.contract import register_engine_cmd
+
+    cmd_engine = register_engine_cmd(a.engine_cmd)
+    if cmd_engine is not None:  # the reference, MuJoCo (the speed baseline) and the command
+        names = [n for n in parse_engines(a.engines or "reduced,mujoco") if n != cmd_engine]
+        names.append(cmd_engine)
+    else:
+        names = parse_engines(a.engines)
     if a.threads is not None and a.threads < 1:
         from cipcore.params import ParameterError
 
         raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
     out = check_out_dir("--out", a.out)  # checked before any work
-    say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
-    if a.json:  # an engine's import banner (warp's) must not corrupt the JSON on stdout
-        with stdout_to_stderr():
+    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    quiet = a.json or a.quiet
+    say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
+    try:
+        if a.json:  # an engine's import banner (warp's) must not corrupt the JSON on stdout
+            with stdout_to_stderr():
+                results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+        else:
             results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
-    else:
-        results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+    except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
+        from .exitcodes import EXIT_CRASH
+
+        print(f"cip-validate: an engine crashed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_CRASH
     write_engine_reports(results, out, figures=not a.no_figures)
+    if junit:
+        from .junit import engines_cases, write_junit
+
+        write_junit(engines_cases(results), junit)
     if a.json:
+        from . import engines as cross
         from .report import jsonable
 
-        print(json.dumps(jsonable(results)))
+        names = {
+            "scan_agreement_relative_l2": "SCAN_AGREEMENT",
+            "nonlinear_growth": "NONLINEAR_GROWTH",
+            "rod_mismatch": "ROD_TOLERANCE",
+        }
+        tolerances = {k: getattr(cross, n) for k, n in names.items() if hasattr(cross, n)}
+        doc = {"cipval_engines": 1, **results, "tolerances": tolerances, **run_environment()}
+        print(json.dumps(jsonable(doc)))
     else:
         for r in results["engines"]:
             if r["status"] == "skipped":
@@ -73,4 +101,8 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
                    help="output directory (created if absent; must be writable)")  # fmt: skip
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_ci_options(p, verbose=False)
+    from .commands.contract import add_engine_cmd_arg
+
+    add_engine_cmd_arg(p)
     p.set_defaults(func=cmd_engines)

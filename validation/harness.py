@@ -36,21 +36,32 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from cipcore.atomic import write_bytes
+from cipcore.atomic import WriteError, write_bytes
 from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper, plots
+from .checklog import with_limit
+from .fingerprint import numerics_fingerprint
 from .profiles import Profile
 from .report import write_json
 from .stats import FAIL, INCONCLUSIVE, PASS
 from .versions import package_versions
 
-__all__ = ["STAGES", "RunInterrupted", "compile_note", "package_versions", "run_validation"]
+__all__ = ["STAGES", "RunInterrupted", "StageCrashed", "compile_note", "package_versions",
+           "run_validation"]  # fmt: skip
 
 STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan", "critical gains",
           "lambda1 curve", "RMS and velocity", "STCC and spectra", "robustness",
           "nonlinear stick", "rod-length study", "figures")  # fmt: skip
 STAGE_DIR = "stages"
+
+
+class StageCrashed(RuntimeError):
+    """A stage raised (an engine crash): ``results.json`` was written, partial, naming it."""
+
+    def __init__(self, stage: str, error: str, kept: list[str], out_dir: Path) -> None:
+        super().__init__(f"stage {stage!r} crashed: {error}")
+        self.stage, self.error, self.kept, self.out_dir = stage, error, kept, out_dir
 
 
 class RunInterrupted(KeyboardInterrupt):
@@ -210,7 +221,11 @@ def run_validation(
     After each stage, ``DIR/results.json`` holds everything finished so far
     (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
     On KeyboardInterrupt (SIGINT, or SIGTERM turned into one by the CLI) raises
-    :class:`RunInterrupted` naming the stages kept.
+    :class:`RunInterrupted` naming the stages kept; when a stage raises (an
+    engine crash) writes ``results.json`` partial with ``"crashed"`` and raises
+    :class:`StageCrashed`.  A script calling this needs an
+    ``if __name__ == "__main__":`` guard: the rod-length stage's process pool
+    (forkserver) imports the main module in its workers.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -274,6 +289,14 @@ def run_validation(
     except KeyboardInterrupt:
         bar.close()
         raise RunInterrupted(list(done), out_dir) from None
+    except (ParameterError, WriteError):  # bad input or an unwritable output: not a crash
+        bar.close()
+        raise
+    except Exception as exc:  # the engine crashed inside a stage: keep what finished
+        bar.close()
+        _write_crash(out_dir, name, exc, _results(profile, state, timings, workers, t0,
+                                                  model_files), done, reused)  # fmt: skip
+        raise StageCrashed(name, f"{type(exc).__name__}: {exc}", list(done), out_dir) from exc
     except BaseException:
         bar.close()  # an error message then starts on its own line
         raise
@@ -281,6 +304,18 @@ def run_validation(
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     return results
+
+
+def _write_crash(out_dir: Path, stage: str, exc: BaseException, partial: dict,
+                 done: list[str], reused: list[str]) -> None:  # fmt: skip
+    """``results.json`` of the finished stages, partial, naming the stage that crashed."""
+    import traceback
+
+    tb = "".join(traceback.format_exception(exc)[-6:])
+    partial.update(partial=True, stages_done=list(done), stages_reused=list(reused),
+                   crashed={"stage": stage, "error": f"{type(exc).__name__}: {exc}",
+                            "traceback": tb})  # fmt: skip
+    write_json(partial, out_dir / "results.json")
 
 
 def _figures(out_dir: Path, state: dict[str, Any], profile: Profile) -> list[Path]:
@@ -432,7 +467,7 @@ def _results(
         "settings": profile.as_dict(),
         "status": FAIL if counts[FAIL] else (INCONCLUSIVE if counts[INCONCLUSIVE] else PASS),
         "counts": counts,
-        "checks": [ch.as_dict() for ch in checks],
+        "checks": [with_limit(ch.as_dict()) for ch in checks],
         "paper": paper_rows,
         "robustness": robust,
         "nonlinear": nonlinear,
@@ -442,6 +477,7 @@ def _results(
         "divergence": divergence,
         "versions": package_versions(),
         "platform": platform.platform(),
+        "fingerprint": numerics_fingerprint(model_files),
         "model_files": {k: str(v) for k, v in (model_files or {}).items()},
         "workers": workers,
         "timings_s": dict(timings),

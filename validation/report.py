@@ -183,17 +183,9 @@ def paper_section(results: dict) -> list[str]:
     return lines
 
 
-def _check_value(c: dict) -> str:
-    v = c["values"]
-    for key in ("value", "relative_l2", "difference_mean", "difference"):
-        if key in v:
-            return f"{key} = {_fmt(v[key])}"
-    if "full" in v and isinstance(v["full"], dict) and "value" in v["full"]:
-        return f"full {_fmt(v['full']['value'])}, reduced {_fmt(v['reduced']['value'])}"
-    return ""
-
-
 def markdown(results: dict, regression: list[Check] | None = None) -> str:
+    from .checklog import check_value
+
     lines = [
         "# cipval validation report",
         "",
@@ -214,7 +206,7 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
                 [
                     c["name"],
                     c["status"],
-                    _check_value(c) or "n/a (no value)",
+                    check_value(c),
                     c["tolerance"] or "n/a (no tolerance)",
                 ]
             )
@@ -224,13 +216,15 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
             "",
             "## Regression against the baseline",
             "",
-            "| number | status | value | baseline | z |",
-            "|---|---|---|---|---|",
+            "| number | status | value | baseline | change | tolerance |",
+            "|---|---|---|---|---|---|",
         ]
         for c in regression:
             v = c.values
+            rel = _fmt(v.get("relative_change"), "n/a (baseline 0 or NaN)")
+            change = f"z = {_fmt(v['z'])}" if "z" in v else f"relative {rel}"
             lines.append(f"| {c.name} | {c.status} | {_fmt(v.get('value'))} | "
-                         f"{_fmt(v.get('baseline'))} | {_fmt(v.get('z'))} |")  # fmt: skip
+                         f"{_fmt(v.get('baseline'))} | {change} | {c.tolerance} |")  # fmt: skip
     lines += paper_section(results)
     lines += ["", "## Amplitude scan (full vs reduced, same noise)", "",
               "| model | initial error (m) | largest abs theta (rad) | rel. L2 | trajectory | RMS "
@@ -384,11 +378,11 @@ def write_reports(results: dict, out_dir: Path, regression: list[Check] | None =
 
 
 def summary_table(results: dict, regression: list[Check] | None = None) -> str:
-    rows = [(c["name"], c["status"], _check_value(c)) for c in results["checks"]]
-    rows += [(c.name, c.status, f"z = {_fmt(c.values.get('z'))}") for c in regression or []]
-    w = max(len(r[0]) for r in rows)
-    out = [f"{'check':<{w}}  {'status':<12}  value", "-" * (w + 40)]
-    out += [f"{n:<{w}}  {s:<12}  {v}" for n, s, v in rows]
+    """The terminal table (:func:`validation.checklog.check_table`) and the counts; moved
+    regression numbers are listed by :func:`validation.checklog.regression_log`."""
+    from .checklog import check_table
+
+    out = [check_table(results["checks"])]
     c = results["counts"]
     out.append(f"\n{c['pass']} pass, {c['fail']} fail, {c['inconclusive']} inconclusive "
                f"({results['profile']} profile, {results['elapsed_s']} s)")  # fmt: skip

@@ -19,6 +19,7 @@ import time
 from cipcore.models import MODEL_NAMES
 
 from .agreement import instrument_checks
+from .ci_options import add_ci_options, run_environment
 from .cli_args import nonnegative_int, positive_int
 from .faults import CATALOGUE, FAULT_TYPES, Fault, make_fault
 from .stats import FAIL
@@ -101,6 +102,10 @@ def cmd_selftest(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError, check_count
 
     check_count("realizations", a.realizations)
+    if a.junit:
+        from .cli_args import check_out_file
+
+        a.junit = check_out_file("--junit", a.junit, (".xml",))
     kinds = [k.strip() for k in a.faults.split(",")] if a.faults else None
     for k in kinds or []:
         if k not in FAULT_TYPES:
@@ -111,8 +116,19 @@ def cmd_selftest(a: argparse.Namespace) -> int:
     if a.power:
         power = [smallest_detectable(r["fault"], a.seed, a.realizations) for r in rows]
     ok = not clean and all(r["flagged"] for r in rows)
+    if a.junit:
+        from .junit import selftest_cases, write_junit
+
+        write_junit(selftest_cases(clean, rows), a.junit, time.perf_counter() - t)
     if a.json:
-        print(json.dumps({"pass": ok, "clean_failures": clean, "faults": rows, "power": power}))
+        from .agreement import ROD_TOLERANCE, TWIN_METRIC_FLOOR, TWIN_TOLERANCE
+        from .report import jsonable
+
+        doc = {"cipval_selftest": 1, "pass": ok, "clean_failures": clean, "faults": rows,
+               "power": power, "tolerances": {"twin_trajectory_relative_l2": TWIN_TOLERANCE,
+               "twin_metric_floor": TWIN_METRIC_FLOOR, "rod_stretch_relative_l2": ROD_TOLERANCE},
+               **run_environment()}  # fmt: skip
+        print(json.dumps(jsonable(doc)))
     else:
         print(format_table(clean, rows))
         if power:
@@ -152,4 +168,5 @@ def register_selftest(sub: argparse._SubParsersAction) -> None:
                    + ", ".join(FAULT_TYPES) + ")")  # fmt: skip
     p.add_argument("--power", action="store_true", help="bisect each type's smallest flagged size")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_ci_options(p, verbose=False)
     p.set_defaults(func=cmd_selftest)

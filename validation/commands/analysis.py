@@ -10,6 +10,7 @@ import numpy as np
 from cipcore.params import STEPPERS, BalanceParams, ParameterError
 from cipcore.registry import get_engine
 
+from ..ci_options import progress_enabled
 from ..cli_args import (
     EXIT_OK,
     add_engine_arg,
@@ -79,7 +80,7 @@ def cmd_lyapunov(a: argparse.Namespace) -> int:
         a.realizations,
         a.seed,
         threads=a.threads,
-        progress=not a.json,
+        progress=not a.json and progress_enabled(),
         **kw,
     )
     events = lyapunov_events(res.per_realization)
@@ -122,7 +123,7 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
         n_realizations=a.realizations,
         seed=a.seed,
         threads=a.threads,
-        progress=True,
+        progress=progress_enabled(),
     )
     if a.json:
         print(dump(res.as_dict()))

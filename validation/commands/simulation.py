@@ -9,6 +9,7 @@ import numpy as np
 from cipcore.atomic import WriteError
 from cipcore.registry import get_engine
 
+from ..ci_options import progress_enabled
 from ..cli_args import (
     EXIT_OK,
     add_engine_arg,
@@ -72,7 +73,7 @@ def cmd_simulate(a: argparse.Namespace) -> int:
         amplitude=a.amplitude,
         decimate=a.decimate,
         threads=a.threads,
-        progress=not a.json,
+        progress=not a.json and progress_enabled(),
         **kw,
     )
     try:

@@ -11,8 +11,8 @@ from pathlib import Path
 from cipcore.atomic import WriteError, write_bytes
 from cipcore.params import ParameterError
 
+from ..ci_options import add_ci_options, progress_enabled
 from ..cli_args import (
-    EXIT_FAIL,
     EXIT_OK,
     check_out_dir,
     check_out_file,
@@ -46,11 +46,18 @@ def _say(text: str) -> None:
     tqdm.write(text, file=sys.stderr)
 
 
+def _quiet_say(text: str) -> None:
+    return None
+
+
 def cmd_run(a: argparse.Namespace) -> int:
     from cip.mjcf_params import model_files
 
     from ..baseline import choose_mode
-    from ..harness import STAGES, RunInterrupted, compile_note, run_validation
+    from ..checklog import regression_log
+    from ..exitcodes import EXIT_CRASH, run_status
+    from ..harness import STAGES, RunInterrupted, StageCrashed, compile_note, run_validation
+    from ..junit import run_cases, write_junit
     from ..report import compare_with_baseline, jsonable, summary_table, write_reports
 
     baseline = read_results(a.baseline, "--baseline") if a.baseline else None
@@ -61,13 +68,20 @@ def cmd_run(a: argparse.Namespace) -> int:
         )
     files = model_files(a.mjcf)  # a bad model file is refused before any work
     out = check_out_dir("--out", a.out)
+    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    if baseline is not None and a.baseline_mode == "auto":  # other models: refused before work
+        from ..fingerprint import model_digests
+
+        choose_mode({"versions": baseline.get("versions"), "model_files": files,
+                     "fingerprint": {"model_digests": model_digests(files)}}, baseline)  # fmt: skip
+    say = _quiet_say if a.quiet else _say
     note = compile_note()
     if note:
-        _say(note)
+        say(note)
 
     def on_stage(name: str, seconds: float, reused: bool) -> None:
         how = "reused from the last run" if reused else f"{seconds:.1f} s"
-        _say(f"stage {STAGES.index(name) + 1}/{len(STAGES)} {name}: {how}")
+        say(f"stage {STAGES.index(name) + 1}/{len(STAGES)} {name}: {how}")
 
     with interrupt_signals() as got:
         try:
@@ -75,7 +89,7 @@ def cmd_run(a: argparse.Namespace) -> int:
                 PROFILES[a.profile],
                 out,
                 workers=a.workers,
-                progress=True,
+                progress=progress_enabled(a.quiet),
                 figures=not a.no_figures,
                 resume=a.resume,
                 on_stage=on_stage,
@@ -95,6 +109,14 @@ def cmd_run(a: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return status
+        except StageCrashed as exc:
+            print(f"cip-validate: stage {exc.stage!r} crashed ({exc.error}); kept "
+                  f"{len(exc.kept)} of {len(STAGES)} stages in {out / 'results.json'} "
+                  "(partial, naming the stage)", file=sys.stderr)  # fmt: skip
+            if junit:
+                write_junit(run_cases(json.loads((out / "results.json").read_text())), junit)
+            return EXIT_CRASH
+        checks_failed = results["status"] == "fail"
         regression = None
         if baseline:
             mode, why = choose_mode(jsonable(results), baseline, a.baseline_mode)
@@ -112,21 +134,25 @@ def cmd_run(a: argparse.Namespace) -> int:
             exc.note = (f"every stage is kept in {out / 'stages'}; free space and rerun with "
                         "--resume to write the reports")  # fmt: skip
             raise
-    print(summary_table(results, [c for c in regression or [] if c.status != "pass"]))
+    if junit:
+        write_junit(run_cases(jsonable(results), regression or []), junit, results["elapsed_s"])
+    moved = regression is not None and any(c.status == "fail" for c in regression)
+    if not a.quiet or checks_failed:
+        print(summary_table(results))
     for line in group_lines(results.get("divergence", [])):
         print(f"divergence: {line}")
     if regression is not None:
         nfail = sum(c.status == "fail" for c in regression)
-        print(
-            f"regression vs {a.baseline} ({mode} mode: {why}): "
-            f"{len(regression) - nfail} of {len(regression)} numbers unchanged"
-        )
-        for c in regression:
-            if c.status == "fail":
-                print(f"  moved: {c.name.removeprefix('regression.')}: "
-                      f"{c.values.get('baseline')} -> {c.values.get('value')}")  # fmt: skip
-    print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'results.json'}")
-    return EXIT_FAIL if results["status"] == "fail" else EXIT_OK
+        same = "reproduced" if mode == "exact" else "within tolerance"
+        print(f"regression vs {a.baseline}: {mode} mode ({why}): "
+              f"{len(regression) - nfail} of {len(regression)} numbers {same}"
+              + (f", {nfail} moved:" if nfail else ""))  # fmt: skip
+        names = [c["name"] for c in results["checks"]]
+        for line in regression_log(regression, names, verbose=a.verbose):
+            print(line)
+    print(f"report: {out / 'report.md'}, {out / 'report.html'}, {out / 'results.json'}"
+          + (f", {junit}" if junit else ""))  # fmt: skip
+    return run_status(checks_failed, moved)
 
 
 def cmd_baseline(a: argparse.Namespace) -> int:
@@ -141,7 +167,11 @@ def cmd_baseline(a: argparse.Namespace) -> int:
         with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
             try:
                 results = run_validation(
-                    PROFILES[a.profile], Path(tmp), workers=a.workers, progress=True, figures=False
+                    PROFILES[a.profile],
+                    Path(tmp),
+                    workers=a.workers,
+                    progress=progress_enabled(),
+                    figures=False,
                 )
             except RunInterrupted:
                 name, status = interrupted_status(got)
@@ -184,11 +214,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--baseline-mode",
-        choices=("auto", "exact", "statistical"),
+        choices=("auto", "exact", "roundoff", "statistical"),
         default="auto",
-        help="exact: every number to 1e-12 relative; statistical: paired tolerances; "
-        "auto (default): exact when package versions and platform match",
+        help="exact: every number to 1e-12 relative; roundoff: every number to 1e-9 "
+        "relative + 1e-12; statistical: paired tolerances; auto (default): exact when package "
+        "versions, CPU instruction set and numpy/BLAS build match, roundoff when only the "
+        "CPU or BLAS differ, statistical when a version differs",
     )
+    add_ci_options(p)
     p.add_argument(
         "--mjcf",
         action="append",

@@ -11,6 +11,7 @@ from cipcore.atomic import WriteError
 from cipcore.models import MODEL_NAMES
 from cipcore.params import ParameterError
 
+from ..ci_options import progress_enabled
 from ..cli_args import (
     EXIT_OK,
     add_engine_arg,
@@ -108,7 +109,7 @@ def cmd_sweep(a: argparse.Namespace) -> int:
                 out,
                 workers=a.workers,
                 scheduler=a.scheduler,
-                progress=True,
+                progress=progress_enabled(),
                 on_point=finished.append,
                 wait_for_lock=a.wait,
             )

@@ -9,6 +9,7 @@ import time
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 
+from ..ci_options import progress_enabled
 from ..cli_args import (
     EXIT_OK,
     add_engine_arg,
@@ -57,7 +58,7 @@ def _simulate(a: argparse.Namespace):
     n = a.realization + 1  # realisation r draws the same noise whatever the count
     check_work("--duration", n, a.duration, params.dt)
     tr = engine.simulate(a.model, params, a.duration, n, a.seed, amplitude=a.amplitude,
-                         decimate=decimate, progress=True, **kw)  # fmt: skip
+                         decimate=decimate, progress=progress_enabled(), **kw)  # fmt: skip
     length = pendulum_length(params)
     return tr, build(a.model, phys), joint_positions(tr, length, a.realization), decimate
 

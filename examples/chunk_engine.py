@@ -1,0 +1,95 @@
+#!/usr/bin/env python3
+"""Reference engine for cipval's chunk exchange protocol (version 1), as a separate program.
+
+cipval starts this program (``cip-validate engines --engine-cmd "python
+examples/chunk_engine.py"``), writes one JSON header line with the model,
+then for every delay chunk a request frame (int64 n, the R start states, the
+R x n controls) and reads a response frame (int64 warnings, the R x n states
+after each step); n = 0 ends the session.  The protocol is documented in
+cipval's README ("Engines in other programs") and in ``cip/process.py``.
+
+This engine steps the model MuJoCo ships in the header (``mjb_base64``) with
+``mj_step``; an engine in another language would build its own model from the
+header's ``parameters`` instead.  It imports nothing from cipval: only the
+standard library, numpy and mujoco.
+
+``--delay-error`` applies each control one step late (the control of step k
+over step k + 1): a one-step delay fault that cipval must catch.
+"""
+
+import argparse
+import base64
+import json
+import os
+import sys
+import tempfile
+
+import mujoco
+import numpy as np
+
+I64, F64 = np.dtype("<i8"), np.dtype("<f8")
+
+
+def read_exact(stream, n: int) -> bytes:
+    data = stream.read(n)
+    if data is None or len(data) != n:
+        raise EOFError(f"expected {n} bytes, got {len(data or b'')}")
+    return data
+
+
+def load_model(header: dict) -> mujoco.MjModel:
+    with tempfile.NamedTemporaryFile(suffix=".mjb", delete=False) as f:
+        f.write(base64.b64decode(header["mjb_base64"]))
+    try:
+        return mujoco.MjModel.from_binary_path(f.name)
+    finally:
+        os.unlink(f.name)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--delay-error", action="store_true", help="apply each control one step late")
+    args = ap.parse_args()
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    header = json.loads(stdin.readline())
+    if header.get("protocol") != "cipval-chunk" or header.get("version") != 1:
+        stdout.write(b'{"error": "this engine speaks cipval-chunk version 1 only"}\n')
+        stdout.flush()
+        return 1
+    model = load_model(header)
+    data = mujoco.MjData(model)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    R, S, U = header["n_realizations"], header["nstate"], header["nu"]
+    assert mujoco.mj_stateSize(model, spec) == S and model.nu == U
+    name = "chunk-example" + ("-delay-error" if args.delay_error else "")
+    stdout.write(
+        (json.dumps({"protocol": "cipval-chunk", "version": 1, "engine": name}) + "\n").encode()
+    )
+    stdout.flush()
+    previous = np.zeros((R, U))  # the control held before the first step (delay error only)
+    warnings = 0
+    while True:
+        (n,) = np.frombuffer(read_exact(stdin, 8), I64)
+        if n == 0:
+            return 0
+        state = np.frombuffer(read_exact(stdin, R * S * 8), F64).reshape(R, S)
+        ctrl = np.frombuffer(read_exact(stdin, R * n * U * 8), F64).reshape(R, n, U)
+        if args.delay_error:
+            applied = np.concatenate([previous[:, None], ctrl[:, :-1]], axis=1)
+            previous = ctrl[:, -1].copy()
+        else:
+            applied = ctrl
+        out = np.empty((R, n, S))
+        for r in range(R):
+            mujoco.mj_setState(model, data, state[r], spec)
+            for k in range(n):
+                data.ctrl[:] = applied[r, k]
+                mujoco.mj_step(model, data)
+                mujoco.mj_getState(model, data, out[r, k], spec)
+        warnings = sum(int(data.warning[w].number) for w in range(len(data.warning)))
+        stdout.write(np.array([warnings], I64).tobytes() + out.astype(F64).tobytes())
+        stdout.flush()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,61 @@
+"""Engines in other programs: the chunk protocol end to end with the shipped example engine."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from validation.cli import main
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "chunk_engine.py"
+CMD = shlex.join([sys.executable, str(EXAMPLE)])
+
+
+def test_example_engine_is_bit_identical_to_mujoco_in_process():
+    from cip.process import process_engine
+    from cipcore.params import BalanceParams
+    from cipcore.registry import get_engine
+
+    p = BalanceParams(beta=21.032)
+    ext = process_engine(CMD).simulate("coupled", p, 0.5, 2, seed=3, amplitude=1e-3)
+    own = get_engine("mujoco").simulate("coupled", p, 0.5, 2, seed=3, amplitude=1e-3)
+    for field in ("balancing_error", "base_velocity", "angle"):
+        assert np.array_equal(ext[field], own[field])
+
+
+def test_contract_passes_for_the_example_and_fails_with_a_one_step_delay_error(tmp_path, capsys):
+    junit = tmp_path / "c.xml"
+    assert main(["contract", "--engine-cmd", CMD, "--junit", str(junit)]) == 0
+    out = capsys.readouterr().out
+    assert "engine command passes the contract" in out
+    assert ET.parse(junit).getroot().get("failures") == "0"
+    assert main(["contract", "--engine-cmd", f"{CMD} --delay-error", "--json"]) == 1
+    doc = json.loads(capsys.readouterr().out)
+    status = {r["check"]: r["status"] for r in doc["checks"]}
+    assert status["delay"] == "fail" and status["reduced_trajectory.single"] == "pass"
+
+
+def test_an_engine_that_dies_is_a_crash_not_a_failure(capsys):
+    dead = shlex.join([sys.executable, "-c", "import sys; sys.exit(3)"])
+    assert main(["contract", "--engine-cmd", dead, "--json"]) == 4
+    doc = json.loads(capsys.readouterr().out)
+    assert {r["status"] for r in doc["checks"]} == {"error"}
+    assert "exited with status 3" in doc["checks"][0]["message"]
+
+
+def test_engines_command_validates_an_engine_cmd(tmp_path, capsys):
+    junit = tmp_path / "e.xml"
+    code = main(["engines", "--engine-cmd", CMD, "--profile", "smoke", "--json",
+                 "--no-figures", "--out", str(tmp_path), "--junit", str(junit)])  # fmt: skip
+    doc = json.loads(capsys.readouterr().out)
+    rows = {r["engine"]: r for r in doc["engines"]}
+    assert set(rows) == {"reduced", "mujoco", "command"}
+    assert code == 0 and rows["command"]["status"] == "pass"
+    assert rows["command"]["trajectory_distance"] == rows["mujoco"]["trajectory_distance"]
+    suites = {s.get("name") for s in ET.parse(junit).getroot().iter("testsuite")}
+    assert suites == {"engines.reduced", "engines.mujoco", "engines.command"}
