@@ -49,6 +49,16 @@ class Capabilities:
         and ``cip-validate engines`` hold it to this).
     packs_points : True when a sweep should pack every grid point x realisation
         into one batch (:mod:`validation.gpu_sweep`) instead of a point at a time.
+    integrator : the time stepper, in MuJoCo's names ("Euler", "RK4",
+        "implicit", "implicitfast") for MuJoCo-family engines, else a
+        descriptive name ("SAP", "generalized-alpha", "semi-implicit Euler",
+        "RK-Merson (variable step)").
+    rod : how the rod between the tips is held: "soft" (MuJoCo's solref/solimp
+        spring-damper), "rigid" (an exact holonomic distance constraint) or
+        "penalty" (a spring of declared stiffness).
+    twin : a short statement of how the engine's exact linear twin is built
+        (:mod:`reduced.twin`), or None when no exact twin exists; such an engine
+        is held to a declared, justified tolerance that the report states.
     """
 
     precision: str
@@ -59,6 +69,9 @@ class Capabilities:
     family: str = ""
     trajectory_tolerance: float = 1e-2
     packs_points: bool = False
+    integrator: str = "Euler"
+    rod: str = "soft"
+    twin: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
