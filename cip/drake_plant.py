@@ -134,8 +134,8 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
         rows["qpos_theta"].append(int(m.jnt_qposadr[jt]))
         rows["dof_x"].append(int(m.jnt_dofadr[jx]))
         rows["dof_theta"].append(int(m.jnt_dofadr[jt]))
-    rod = None
-    if nc == 2:
+    rod = None  # a file whose equality constraints are disabled has no rod
+    if nc == 2 and not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EQUALITY):
         rod = float(m.tendon_length0[_id(m, _OBJ.mjOBJ_TENDON, "rod")])
     return CIPGeometry(
         n_controllers=nc,

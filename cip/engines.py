@@ -9,6 +9,7 @@ states over a delay chunk.  :data:`MUJOCO` is MuJoCo on the CPU.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +23,7 @@ from cipcore.schema import Trajectory
 
 from .linearize import linearize
 from .lyapunov import lyapunov_full
+from .mjcf_params import ModelMapping
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
 from .simulate import simulate_full
@@ -66,6 +68,10 @@ class RigidBodyEngine:
     max_threads: int | None = None
     linearizer: Any = None
     notes: str = ""
+    integrators: tuple[str, ...] = ("Euler",)
+    twin_builder: Callable[[ModelMapping], dict[str, Any]] | None = None
+    twin_tolerance: float = 1e-9
+    rod_tolerance: float = 1e-3
     _why: str | None = field(default=None, init=False, repr=False)
 
     def unavailable(self) -> str | None:
@@ -82,6 +88,17 @@ class RigidBodyEngine:
 
     def _backend(self) -> type[RolloutBackend]:
         return self.backend()
+
+    def rollout(self) -> type[RolloutBackend]:
+        """The engine's :class:`cip.runner.RolloutBackend` class (what a fault wraps)."""
+        return self._backend()
+
+    def twin_terms(self, mapping: ModelMapping) -> dict[str, Any]:
+        """Keyword arguments of :class:`reduced.twin.TwinParams` for this engine's exact twin."""
+        if self.twin_builder is not None:
+            return self.twin_builder(mapping)
+        integrator = mapping.integrator if self.integrators else self.capabilities.integrator
+        return {**mapping.twin_terms(), "integrator": integrator}
 
     def runner(
         self,
@@ -110,9 +127,10 @@ class RigidBodyEngine:
     ) -> Trajectory:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
+        options.setdefault("backend", self._backend())
         return simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
-            backend=self._backend(), engine_name=self.name, **options,
+            engine_name=self.name, **options,
         )  # fmt: skip
 
     def lyapunov(
@@ -126,10 +144,10 @@ class RigidBodyEngine:
     ) -> LyapunovResult:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
+        options.setdefault("backend", self._backend())
         return lyapunov_full(
-            get_model(model).name, params, duration, n_realizations, seed,
-            backend=self._backend(), **options,
-        )  # fmt: skip
+            get_model(model).name, params, duration, n_realizations, seed, **options
+        )
 
     def linearize(self, model: BalanceModel | str, physical: CIPParams | None = None):
         """The engine's linearisation about upright beside the reduced model's
@@ -149,8 +167,13 @@ MUJOCO = RigidBodyEngine(
         deterministic=True,
         family="MuJoCo",
         trajectory_tolerance=1e-2,
+        integrator="Euler",
+        rod="soft",
+        twin="the model file's terms, its soft rod (solref/solimp) and its integrator "
+        "(Euler, implicit, implicitfast or RK4) as MuJoCo defines them",
     ),
     backend=lambda: MujocoRollout,
+    integrators=("Euler", "implicit", "implicitfast", "RK4"),
     linearizer=linearize,
     notes="MuJoCo C engine, mujoco.rollout across threads",
 )

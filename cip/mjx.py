@@ -113,8 +113,13 @@ ENGINE = RigidBodyEngine(
         linearize=False,
         family="MuJoCo (XLA)",
         trajectory_tolerance=1e-2,
+        integrator="Euler",
+        rod="soft",
+        twin="the model file's terms, its soft rod (solref/solimp) and its integrator "
+        "(Euler, implicitfast or RK4) as MuJoCo defines them",
     ),
     backend=lambda: MJXRollout,
+    integrators=("Euler", "implicitfast", "RK4"),
     requires=("jax", "mujoco.mjx"),
     max_threads=1,
     notes="MuJoCo XLA: jit(vmap(scan(mjx.step))) over a delay chunk, float64",

@@ -3,7 +3,12 @@
 Stages (each seeded from the profile's seed, so a rerun gives the same numbers
 whatever the number of workers):
 
-1. lambda1 of the MuJoCo and the reduced model at a few gains (agreement);
+The engine under validation is any rigid-body engine of the registry
+(``engine``, MuJoCo by default; ``integrator`` steps its model file with another
+of MuJoCo's integrators): every engine goes through the same stages, checks
+and tolerances (its twin and twin tolerance are its own).
+
+1. lambda1 of the engine and the reduced model at a few gains (agreement);
 2. time series of both engines at the paper's gains under the same noise,
    small amplitude: RMS, spectra, STCC peaks, velocity spread (agreement);
 3. an amplitude scan: where the agreement breaks down;
@@ -82,9 +87,17 @@ def compile_note() -> str | None:
             "it adds to the first stage's time)")  # fmt: skip
 
 
-def _run_key(profile: Profile, figures: bool, model_files: dict[str, str] | None = None) -> str:
+def _run_key(
+    profile: Profile,
+    figures: bool,
+    model_files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> str:
     key = {"profile": profile.as_dict(), "figures": figures, "versions": package_versions(),
            "model_files": {k: str(v) for k, v in (model_files or {}).items()}}  # fmt: skip
+    if engine != "mujoco" or integrator is not None:  # keys of default runs stay as they were
+        key.update(engine=engine, integrator=integrator)
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -134,11 +147,15 @@ def run_validation(
     figures: bool = True, resume: bool = False,
     on_stage: Callable[[str, float, bool], None] | None = None,
     model_files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Run every stage; returns the results dictionary written to results.json.
 
     ``model_files`` maps "single" / "coupled" to a user's MJCF (``--mjcf``) run
-    instead of the shipped ``models/cip_<model>.xml``.
+    instead of the shipped ``models/cip_<model>.xml``; ``engine`` is the
+    rigid-body engine validated and ``integrator`` the MuJoCo integrator its
+    model file is stepped with (default: the file's).
 
     After each stage, ``DIR/results.json`` holds everything finished so far
     (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
@@ -148,7 +165,8 @@ def run_validation(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    store = _Stages(out_dir, _run_key(profile, figures, model_files), resume)
+    store = _Stages(out_dir, _run_key(profile, figures, model_files, engine, integrator), resume)
+    target = {"files": model_files, "engine": engine, "integrator": integrator}
     bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     done: list[str] = []
@@ -157,11 +175,11 @@ def run_validation(
 
     def compute(name: str) -> Any:
         if name == "lambda1 agreement":
-            return agreement.lyapunov_checks(profile, workers, files=model_files)
+            return agreement.lyapunov_checks(profile, workers, **target)
         if name == "time-series agreement":
-            return agreement.series_checks(profile, workers, files=model_files)
+            return agreement.series_checks(profile, workers, **target)
         if name == "amplitude scan":
-            return agreement.amplitude_scan(profile, workers, files=model_files)
+            return agreement.amplitude_scan(profile, workers, **target)
         if name == "critical gains":
             return paper.critical_gains(profile, workers)
         if name == "lambda1 curve":
@@ -177,7 +195,7 @@ def run_validation(
             paper.clear_cache()  # the paper stages' shared simulations are no longer needed
             return nonlinear
         if name == "rod-length study":
-            return agreement.rod_length_study(profile, out_dir, workers)
+            return agreement.rod_length_study(profile, out_dir, workers, engine, integrator)
         return _figures(out_dir, state, profile) if figures else []
 
     try:
@@ -195,6 +213,7 @@ def run_validation(
             done.append(name)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
+            partial.update(engine=_engine_record(engine, integrator))
             partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
             write_json(partial, out_dir / "results.json")
             if on_stage:
@@ -204,8 +223,16 @@ def run_validation(
         raise RunInterrupted(list(done), out_dir) from None
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
+    results.update(engine=_engine_record(engine, integrator))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     return results
+
+
+def _engine_record(engine: str, integrator: str | None) -> dict[str, Any]:
+    """What ran: the engine, its capabilities and tolerances, the integrator requested."""
+    eng = agreement.rigid_engine(engine)
+    return {"name": engine, "integrator": integrator, "capabilities": eng.capabilities.as_dict(),
+            "twin_tolerance": eng.twin_tolerance, "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
 def _figures(out_dir: Path, state: dict[str, Any], profile: Profile) -> list[Path]:

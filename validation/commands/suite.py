@@ -20,6 +20,7 @@ from ..cli_args import (
     interrupted_status,
     positive_int,
 )
+from ..engine_options import add_engine_options, check_engine_options
 from ..profiles import PROFILES
 
 
@@ -59,6 +60,7 @@ def cmd_run(a: argparse.Namespace) -> int:
             f"this run uses {a.profile!r}"
         )
     files = model_files(a.mjcf)  # a bad model file is refused before any work
+    check_engine_options(a)
     out = check_out_dir("--out", a.out)
     note = compile_note()
     if note:
@@ -79,6 +81,8 @@ def cmd_run(a: argparse.Namespace) -> int:
                 resume=a.resume,
                 on_stage=on_stage,
                 model_files=files,
+                engine=a.engine,
+                integrator=a.integrator,
             )
         except RunInterrupted as exc:
             kept = ", ".join(exc.kept) or "none"
@@ -124,6 +128,7 @@ def cmd_baseline(a: argparse.Namespace) -> int:
     from ..report import write_json
 
     out = check_out_file("--out", a.out, (".json",))
+    check_engine_options(a)
     if a.from_results:
         read_results(a.from_results, "--from")
         shutil.copyfile(a.from_results, out)
@@ -131,8 +136,9 @@ def cmd_baseline(a: argparse.Namespace) -> int:
         with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
             try:
                 results = run_validation(
-                    PROFILES[a.profile], Path(tmp), workers=a.workers, progress=True, figures=False
-                )
+                    PROFILES[a.profile], Path(tmp), workers=a.workers, progress=True,
+                    figures=False, engine=a.engine, integrator=a.integrator,
+                )  # fmt: skip
             except RunInterrupted:
                 name, status = interrupted_status(got)
                 print(
@@ -197,6 +203,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="reuse the stages an interrupted run with the same profile left in --out",
     )
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    add_engine_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
@@ -224,4 +231,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="threads / processes (count >= 1; default: all cores)",
     )
+    add_engine_options(p)
     p.set_defaults(func=cmd_baseline)
