@@ -10,6 +10,8 @@ damping (rigid body); give the same numbers for any batch split.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -52,13 +54,14 @@ def test_same_noise_gives_the_reduced_trajectory(name: str, model: str) -> None:
         assert np.array_equal(tr["balancing_error"], ref["balancing_error"])
 
 
-@pytest.mark.parametrize("name", ENGINES)
-def test_delay_is_tau_over_dt_steps(name: str) -> None:
-    """The cart force at step n equals beta R_n e(n - d) for d = round(tau/dt) and no other lag.
+def _lag_residuals(name: str, integrator: str | None = None) -> tuple[int, dict[int, float]]:
+    """Residual of the cart's response to the commanded force for lags around d.
 
-    The force is recovered from the recorded cart velocity: under the engines'
-    semi-implicit Euler with explicit damping, v(n+1) = v(n) + dt (F_n / M - gamma v(n)).
-    A tiny m/M removes the rigid body's cart reaction so that the lag stands out.
+    The cart velocity obeys, for any one-step integrator that holds the force
+    F_n over step n (semi-implicit Euler, implicit, RK4, SAP) and a vanishing
+    pendulum reaction (m/M = 1e-7), v(n+1) = a v(n) + b F_n / M with constants
+    a, b of the stepper; a and b are fitted by least squares for each candidate
+    lag of F_n = M beta R_n e(n - lag), so no stepper is assumed.
     """
     engine = _engine(name)
     p = BalanceParams(beta=20.306, nu=0.2)
@@ -66,23 +69,41 @@ def test_delay_is_tau_over_dt_steps(name: str) -> None:
     n_steps = 6 * d
     xi = GainNoise(3, 1, 1).next_chunk(n_steps)
     physical = CIPParams.from_reduced(p, mass_ratio=1e-7)
+    if integrator is not None:
+        physical = replace(physical, integrator=integrator)
     runner = engine.runner("single", p, 1, 1e-4, physical=physical)
     chunks = []
     for k in range(0, n_steps, runner.max_chunk if runner.max_chunk < n_steps else n_steps):
         chunks.append(runner.advance(xi[:, k : k + min(runner.max_chunk, n_steps - k)]))
     e = np.concatenate([c["balancing_error"] for c in chunks], axis=1)[0, :, 0]
     v = np.concatenate([c["base_velocity"] for c in chunks], axis=1)[0, :, 0]
-    force = (v[1:] - v[:-1]) / p.dt + p.gamma * v[:-1]  # F_n / M, n = 0 .. N-2
     gain = p.beta * (1.0 + p.noise_scale * xi[0, : n_steps - 1, 0])
     n = np.arange(2 * d, n_steps - 1)
-    resid = {
-        lag: np.linalg.norm(force[n] - gain[n] * e[n - lag]) / np.linalg.norm(force[n])
-        for lag in range(d - 3, d + 4)
-    }
+    resid = {}
+    for lag in range(d - 3, d + 4):
+        force = gain[n] * e[n - lag]
+        (a, b), *_ = np.linalg.lstsq(np.column_stack([v[n], force]), v[n + 1], rcond=None)
+        resid[lag] = np.linalg.norm(v[n + 1] - a * v[n] - b * force) / np.linalg.norm(b * force)
+    return d, resid
+
+
+@pytest.mark.parametrize("name", ENGINES)
+def test_delay_is_tau_over_dt_steps(name: str) -> None:
+    """The cart force at step n is beta R_n e(n - d) for d = round(tau/dt) and no other lag."""
+    d, resid = _lag_residuals(name)
     best = min(resid, key=resid.get)
     assert best == d, f"{name}: force follows e with lag {best} steps, expected {d}: {resid}"
     assert resid[d] < 1e-3
     assert min(resid[d - 1], resid[d + 1]) > 10 * resid[d]
+
+
+@pytest.mark.parametrize("integrator", ["RK4", "implicitfast"])
+def test_delay_is_tau_over_dt_steps_for_any_integrator(integrator: str) -> None:
+    """MuJoCo stepping RK4 or implicitfast applies the same delay (the estimator assumes
+    no stepper)."""
+    d, resid = _lag_residuals("mujoco", integrator)
+    assert min(resid, key=resid.get) == d, resid
+    assert resid[d] < 1e-3 and min(resid[d - 1], resid[d + 1]) > 10 * resid[d]
 
 
 @pytest.mark.parametrize("name", RIGID)
