@@ -21,7 +21,7 @@ Two ways of driving a batch of worlds (one world per realisation, float32):
   realisation), so the same seed means the same draws as in every other engine.
   Many grid points can share one batch (world ``w`` is realisation ``w // P`` of
   point ``w % P``, matching MuJoCo Warp's per-world model fields, indexed
-  ``world % batch``): see :func:`validation.gpu_sweep`.
+  ``world % batch``): see :func:`validation.sweeps.gpu`.
 
 On a CUDA device each chunk of steps (control kernel, ``mujoco_warp.step``,
 recording) is captured once as a CUDA graph (``wp.ScopedCapture``) and replayed;

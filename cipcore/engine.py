@@ -48,7 +48,7 @@ class Capabilities:
         at small amplitude that the engine's precision allows (the contract tests
         and ``cip-validate engines`` hold it to this).
     packs_points : True when a sweep should pack every grid point x realisation
-        into one batch (:mod:`validation.gpu_sweep`) instead of a point at a time.
+        into one batch (:mod:`validation.sweeps.gpu`) instead of a point at a time.
     integrator : the time stepper, in MuJoCo's names ("Euler", "RK4",
         "implicit", "implicitfast") for MuJoCo-family engines, else a
         descriptive name ("SAP", "generalized-alpha", "semi-implicit Euler",

@@ -13,6 +13,7 @@ from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 
 from .evaluate import evaluate_point
+from .gpu import evaluate_points as evaluate_gpu_points
 from .store import DirectoryLock, Store, write_dataset
 from .study import Study
 
@@ -69,9 +70,8 @@ def run_sweep(
             if not todo:
                 pass
             elif get_engine(study.engine).capabilities.packs_points:
-                from ..gpu_sweep import evaluate_points  # one batch of every point x realisation
-
-                for p, r in zip(todo, evaluate_points(sd, todo), strict=True):
+                # one batch of every point x realisation
+                for p, r in zip(todo, evaluate_gpu_points(sd, todo), strict=True):
                     finished(p, r)
             elif scheduler:
                 _run_dask(scheduler, sd, todo, finished)
