@@ -180,9 +180,15 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
     assert set(rows) == {"reduced", "mujoco"}
     assert rc == (1 if res["status"] == "fail" else 0)
     m = rows["mujoco"]
-    assert m["checks"]["trajectory"] == "pass" and m["checks"]["rod"] == "pass"
+    # the same direct checks as `run --engine mujoco`: its twin, rod, delay, declared model
+    names = {c["name"] for c in m["checks"]}
+    assert {"twin.trajectory.coupled", "twin.rod.coupled", "delay.single"} <= names
+    assert not [f for f in m["failed"] if f.startswith(("twin.", "delay.", "model."))]
+    assert m["twin_distance"]["coupled"] < m["twin_tolerance"]
+    assert m["delay_steps"] == {"single": 100, "coupled": 100}
     assert m["throughput"]["ratio_to_mujoco"] == 1.0
     assert 0 < m["trajectory_distance"]["coupled"] < 1e-2
+    assert rows["reduced"]["trajectory_distance"]["coupled"] == 0.0
     assert (tmp_path / "report.md").read_text().count("| mujoco |") == 1
 
 
