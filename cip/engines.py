@@ -128,10 +128,13 @@ class RigidBodyEngine:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         options.setdefault("backend", self._backend())
-        return simulate_full(
+        tr = simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
             engine_name=self.name, **options,
         )  # fmt: skip
+        if not self.integrators:  # the engine's own stepper ran, whatever the file says
+            tr.attrs["stepper"] = self.capabilities.integrator
+        return tr
 
     def lyapunov(
         self,
