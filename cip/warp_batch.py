@@ -40,6 +40,8 @@ import warp as wp
 wp.config.quiet = True  # before mujoco_warp initialises warp: no banner
 import mujoco_warp as mjw  # noqa: E402
 
+from .names import cart_joint, hinge_joint, motor  # noqa: E402
+
 wp.init()
 
 f32 = wp.float32
@@ -213,12 +215,12 @@ def _joint_addresses(m: mujoco.MjModel, nc: int) -> tuple[np.ndarray, ...]:
     def jid(name: str) -> int:
         return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
 
-    x = np.array([m.jnt_qposadr[jid(f"x_M{i + 1}")] for i in range(nc)])
-    th = np.array([m.jnt_qposadr[jid(f"theta_{i + 1}")] for i in range(nc)])
-    vx = np.array([m.jnt_dofadr[jid(f"x_M{i + 1}")] for i in range(nc)])
-    om = np.array([m.jnt_dofadr[jid(f"theta_{i + 1}")] for i in range(nc)])
+    x = np.array([m.jnt_qposadr[jid(cart_joint(i + 1))] for i in range(nc)])
+    th = np.array([m.jnt_qposadr[jid(hinge_joint(i + 1))] for i in range(nc)])
+    vx = np.array([m.jnt_dofadr[jid(cart_joint(i + 1))] for i in range(nc)])
+    om = np.array([m.jnt_dofadr[jid(hinge_joint(i + 1))] for i in range(nc)])
     u = np.array(
-        [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i + 1}") for i in range(nc)]
+        [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(i + 1)) for i in range(nc)]
     )
     return x, th, vx, om, u
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
+from cip.names import ROD, cart_damper, hinge_joint, motor, tip_damper, tip_site
 from cipcore.models import MODEL_NAMES
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
@@ -100,10 +101,10 @@ class Fault:
 
 
 # ------------------------------------------------------------ model edits
-def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, pattern: str) -> list[int]:
+def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, name_of: Callable[[int], str]) -> list[int]:
     out = []
     for i in (1, 2):
-        j = mujoco.mj_name2id(m, kind, pattern.format(i))
+        j = mujoco.mj_name2id(m, kind, name_of(i))
         if j >= 0:
             out.append(j)
     return out
@@ -123,23 +124,23 @@ def _scale_timestep(f: float) -> ModelEdit:
     return edit
 
 
-def _scale_bias(name: str, f: float) -> ModelEdit:
+def _scale_bias(name_of: Callable[[int], str], f: float) -> ModelEdit:
     def edit(m):
-        for a in _ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name + "_{}"):
+        for a in _ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name_of):
             m.actuator_biasprm[a][2] *= f
 
     return edit
 
 
 def _pendulum_bodies(m) -> list[int]:
-    return [m.jnt_bodyid[j] for j in _ids(m, mujoco.mjtObj.mjOBJ_JOINT, "theta_{}")]
+    return [m.jnt_bodyid[j] for j in _ids(m, mujoco.mjtObj.mjOBJ_JOINT, hinge_joint)]
 
 
 def _scale_length(f: float) -> ModelEdit:
     def edit(m):
         for b in _pendulum_bodies(m):
             m.body_ipos[b] *= f
-        for s in _ids(m, mujoco.mjtObj.mjOBJ_SITE, "tip_{}"):
+        for s in _ids(m, mujoco.mjtObj.mjOBJ_SITE, tip_site):
             m.site_pos[s] *= f
         # the tip damping force is -gamma m v: its coefficient does not depend on L
 
@@ -166,7 +167,7 @@ def _add_bob_inertia(kappa: float) -> ModelEdit:
 
 def _scale_rod_timeconst(f: float) -> ModelEdit:
     def edit(m):
-        e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "rod")
+        e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, ROD)
         if e >= 0:
             m.eq_solref[e][0] *= f
 
@@ -187,7 +188,7 @@ def _other_integrator(m: mujoco.MjModel) -> None:
 # ------------------------------------------------------------ control edits
 def _gain_on_controller_1(f: float) -> CtrlEdit:
     def edit(m, ctrl, memory):
-        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, "u_1")
+        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(1))
         ctrl = ctrl.copy()
         ctrl[:, :, a] *= f
         return ctrl
@@ -267,7 +268,7 @@ FAULT_TYPES: dict[str, dict] = {
             s,
             "relative",
             "cart damping gamma (1 + s)",
-            edit_model=_scale_bias("cart_damping", 1 + s),
+            edit_model=_scale_bias(cart_damper, 1 + s),
         ),
     },
     "tip_damping": {
@@ -276,7 +277,7 @@ FAULT_TYPES: dict[str, dict] = {
             s,
             "relative",
             "tip damping gamma (1 + s)",
-            edit_model=_scale_bias("tip_damping", 1 + s),
+            edit_model=_scale_bias(tip_damper, 1 + s),
         ),
     },
     "pendulum_length": {
