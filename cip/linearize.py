@@ -9,7 +9,7 @@ are physics, not solver noise), then are transformed to
 * coupled:  x = (q_T, q_M1, q_M2, delta, and rates),    q_T = (x_T1 + x_T2)/2,
             delta = x_T1 - x_T2 (the rod's stretch, zero for a rigid rod)
 
-and compared with the reduced model's matrices (eqs. bormann04:TM, sss08:TM).
+and compared with the reduced model's matrices (eqs. (3), (5)).
 The rigid body differs from the reduced model by small terms, predicted here
 to first order and checked by the tests:
 

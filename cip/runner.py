@@ -39,7 +39,7 @@ STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 class Controller:
     """The control law on the carts.
 
-    kind "delayed-random-gain":  F_i = M beta R_i(t) e_i(t - tau)  (paper eq. sss08:TM)
+    kind "delayed-random-gain":  F_i = M beta R_i(t) e_i(t - tau)  (paper eq. (5))
     kind "pd":                   F_i = M (kp e_i(t - tau) + kd e_i'(t - tau))
     (the PD-controlled CIP of the authors' earlier work, with the same delay;
     tau may be one step for an undelayed PD).

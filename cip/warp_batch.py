@@ -14,7 +14,7 @@ Two ways of driving a batch of worlds (one world per realisation, float32):
   slots (an integer index, never a time lookup: float32 time would drift),
   overwrites it with e_i(n) = L sin(theta_i(n)), and sets the cart force
 
-      F_i(n) = M beta (1 + nu xi_{i,n} / sqrt(dt)) e_i(n - d)        (paper eq. sss08:TM)
+      F_i(n) = M beta (1 + nu xi_{i,n} / sqrt(dt)) e_i(n - d)        (paper eq. (5))
 
   from the draws xi of the chunk, uploaded once per chunk.  The draws are made
   on the host by :class:`cipcore.noise.GainNoise` (one PCG64 stream per
@@ -64,7 +64,7 @@ def _delayed_gain_control(
     ctrl: wp.array2d(dtype=f32),
     max_angle: wp.array(dtype=f32),
 ):
-    """ctrl of step n = step[0] + k from the ring slot n mod d (eq. sss08:TM); slot <- e(n)."""
+    """ctrl of step n = step[0] + k from the ring slot n mod d (eq. (5)); slot <- e(n)."""
     w = wp.tid()
     slot = (step[0] + k) % delay[w]
     for c in range(th_adr.shape[0]):

@@ -3,7 +3,7 @@
 An *engine* advances a batch of realisations of a balancing model
 (:mod:`cipcore.models`) under the paper's delayed random-gain feedback
 
-    F_i(t) = beta R_i(t) e_i(t - tau),   R_i = 1 + nu xi_i / sqrt(dt)      (eq. sss08:TM)
+    F_i(t) = beta R_i(t) e_i(t - tau),   R_i = 1 + nu xi_i / sqrt(dt)      (eq. (5))
 
 with the noise drawn from the shared per-realisation streams
 (:mod:`cipcore.noise`), so that the same seed means the same draws in every

@@ -1,6 +1,6 @@
 """The exact linear twin of the rigid-body CIP: an instrument, not the paper's model.
 
-The paper's reduced model (eqs. bormann04:TM, sss08:TM) is the scientific
+The paper's reduced model (eqs. (3), (5)) is the scientific
 reference.  The rigid body differs from it by small, known terms; the twin is the
 reduced model extended by exactly those terms, linearised about upright and
 stepped the way MuJoCo's ``Euler`` integrator steps, so that at small amplitude
@@ -16,7 +16,7 @@ equations of a cart with a pendulum whose mass m sits at the tip are::
     mu x_i''       + mu (1 + kappa) e_i'' = mu alpha e_i      - gamma_t mu v_Ti + s_i f
 
 with alpha = g/L, v_Ti = x_i' + e_i' the tip velocity, u_i = beta R_i(t)
-e_i(t - tau) the control (paper eq. sss08:TM), gamma_t the tip damping (a force
+e_i(t - tau) the control (paper eq. (5)), gamma_t the tip damping (a force
 -gamma_t m v_T at the tip) and gamma_c the cart damping.  Eliminating x_i'' gives
 the reduced model's tip equation x_Ti'' + gamma_t x_Ti' = alpha e_i - kappa e_i''
 and the cart equation x_i'' + gamma_c x_i' = u_i - mu alpha e_i + mu kappa e_i'':
