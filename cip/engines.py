@@ -11,11 +11,11 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
-from cipcore.engine import Capabilities
+from cipcore.engine import Capabilities, LyapunovOptions, SimulateOptions
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
@@ -123,7 +123,7 @@ class RigidBodyEngine:
         duration: float,
         n_realizations: int = 1,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[SimulateOptions],
     ) -> Trajectory:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
@@ -143,7 +143,7 @@ class RigidBodyEngine:
         duration: float,
         n_realizations: int = 8,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)

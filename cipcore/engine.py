@@ -20,7 +20,7 @@ entry in :data:`cipcore.registry.ENGINES` (or a ``cipval.engines`` entry point).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, TypedDict, Unpack, runtime_checkable
 
 import numpy as np
 
@@ -77,6 +77,48 @@ class Capabilities:
         return asdict(self)
 
 
+class SimulateOptions(TypedDict, total=False):
+    """The keyword options of :meth:`Engine.simulate` (an engine refuses others).
+
+    amplitude : initial balancing error (m).  decimate : record every n-th step.
+    fields : schema fields to record.  noise : a :class:`cipcore.noise.GainNoise`
+    or ``ArrayNoise`` instead of the seed's.  threads : worker threads.
+    progress : show a progress bar.  Rigid-body engines only: physical : the
+    rigid body's parameters (``cip.model.CIPParams``); mj_model : a compiled
+    model file run instead of the generator's; backend : the rollout backend
+    class (what a fault at the engine boundary wraps).  The reference only:
+    stepper : "semi-implicit" or "explicit".
+    """
+
+    amplitude: float
+    decimate: int
+    fields: tuple[str, ...]
+    dtype: Any
+    noise: Any
+    threads: int | None
+    max_bytes: int
+    progress: bool
+    physical: Any
+    mj_model: Any
+    backend: Any
+    stepper: str
+
+
+class LyapunovOptions(TypedDict, total=False):
+    """The keyword options of :meth:`Engine.lyapunov` (an engine refuses others):
+    threads, progress, transient (s), epsilon (m); rigid-body engines also
+    physical, mj_model and backend (as :class:`SimulateOptions`)."""
+
+    threads: int | None
+    progress: bool
+    transient: float | None
+    epsilon: float
+    physical: Any
+    mj_model: Any
+    backend: Any
+    stepper: str
+
+
 @runtime_checkable
 class ChunkRunner(Protocol):
     """A batch of realisations advanced at most ``max_chunk`` steps at a time.
@@ -122,7 +164,7 @@ class Engine(Protocol):
         duration: float,
         n_realizations: int = 1,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[SimulateOptions],
     ) -> Trajectory: ...
 
     def lyapunov(
@@ -132,5 +174,5 @@ class Engine(Protocol):
         duration: float,
         n_realizations: int = 8,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult: ...
