@@ -75,6 +75,15 @@ def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: s
         assert "delay.single" in failed
 
 
+def test_one_step_late_delay_fails_mjx() -> None:
+    """MJX too (a control edit: the compiled step is reused, no new compilation)."""
+    _engine("mjx")
+    fault = make_fault("delay_late", 1)
+    checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine="mjx")
+    failed = [c.name for c in checks if c.status == "fail"]
+    assert "delay.single" in failed and "twin.trajectory.single" in failed
+
+
 def test_unmodified_drake_passes_every_direct_check() -> None:
     _engine("drake")
     checks = instrument_checks(1, 1, threads=1, engine="drake")
