@@ -43,7 +43,7 @@ from tqdm.auto import tqdm
 from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper, plots
-from .profiles import Profile
+from .profiles import PAPER_BETA, Profile
 from .report import write_json
 from .stats import FAIL, INCONCLUSIVE, PASS
 from .versions import package_versions
@@ -213,7 +213,7 @@ def run_validation(
             done.append(name)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
-            partial.update(engine=_engine_record(engine, integrator))
+            partial.update(engine=_engine_record(engine, integrator, model_files))
             partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
             write_json(partial, out_dir / "results.json")
             if on_stage:
@@ -223,16 +223,26 @@ def run_validation(
         raise RunInterrupted(list(done), out_dir) from None
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
-    results.update(engine=_engine_record(engine, integrator))
+    results.update(engine=_engine_record(engine, integrator, model_files))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     return results
 
 
-def _engine_record(engine: str, integrator: str | None) -> dict[str, Any]:
-    """What ran: the engine, its capabilities and tolerances, the integrator requested."""
+def _engine_record(
+    engine: str, integrator: str | None, files: dict[str, str] | None = None
+) -> dict[str, Any]:
+    """What ran: the engine, its capabilities and tolerances, the integrator per model."""
+    from cip.mjcf_params import read_mapping
+
     eng = agreement.rigid_engine(engine)
-    return {"name": engine, "integrator": integrator, "capabilities": eng.capabilities.as_dict(),
-            "twin_tolerance": eng.twin_tolerance, "rod_tolerance": eng.rod_tolerance}  # fmt: skip
+    ran = {
+        m: read_mapping(agreement.model_file(m, files, integrator)).integrator
+        if eng.integrators else eng.capabilities.integrator
+        for m in PAPER_BETA
+    }  # fmt: skip
+    return {"name": engine, "integrator_requested": integrator, "integrator": ran,
+            "capabilities": eng.capabilities.as_dict(), "twin_tolerance": eng.twin_tolerance,
+            "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
 def _figures(out_dir: Path, state: dict[str, Any], profile: Profile) -> list[Path]:
