@@ -375,7 +375,7 @@ def series_checks(
                 name=f"agreement.trajectory.{model}",
                 status=PASS if rel < 0.01 and max_angle < small_angle_limit() else FAIL,
                 values={"relative_l2": rel, "max_abs_angle": max_angle},
-                tolerance="relative L2 distance of the balancing errors < 1% (issue 3), "
+                tolerance="relative L2 distance of the balancing errors < 1% over the first 10 s, "
                 "in the small-angle regime",
                 details=details,
             )
@@ -507,7 +507,7 @@ def rod_length_study(
     engine: str = "mujoco",
     integrator: str | None = None,
 ) -> tuple[list[Check], list[dict], object]:
-    """The shipped rod-length study (issue 5) at the profile's size.
+    """The shipped rod-length study at the profile's size.
 
     Check: in the linear regime (smallest amplitude) the rod length must not
     matter (it drops out of the reduced model): with common random numbers,

@@ -388,7 +388,7 @@ FAULT_TYPES: dict[str, dict] = {
     },
 }
 
-#: The sizes the selftest must flag (issue 9's list and more).
+#: The sizes the selftest must flag.
 CATALOGUE: tuple[tuple[str, float], ...] = (
     ("delay_late", 1),
     ("delay_short", 1),
