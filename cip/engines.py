@@ -23,7 +23,7 @@ from cipcore.schema import Trajectory
 
 from .linearize import linearize
 from .lyapunov import lyapunov_full
-from .mjcf_params import ModelMapping
+from .mjcf_params import INTEGRATOR_NAMES, ModelMapping
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
 from .simulate import simulate_full
@@ -97,7 +97,13 @@ class RigidBodyEngine:
         """Keyword arguments of :class:`reduced.twin.TwinParams` for this engine's exact twin."""
         if self.twin_builder is not None:
             return self.twin_builder(mapping)
-        integrator = mapping.integrator if self.integrators else self.capabilities.integrator
+        integrator = mapping.integrator
+        if not self.integrators:
+            # its own stepper: the twin steps it where MuJoCo has it; an engine without an
+            # exact twin (capabilities.twin None) is held to the semi-implicit Euler twin
+            # at its declared twin_tolerance
+            own = self.capabilities.integrator
+            integrator = own if own in INTEGRATOR_NAMES.values() else "Euler"
         return {**mapping.twin_terms(), "integrator": integrator}
 
     def runner(
