@@ -29,7 +29,7 @@ def cmd_engines(a: argparse.Namespace) -> int:
     out = check_out_dir("--out", a.out)  # checked before any work
     say = (lambda n: None) if a.json else (lambda n: print(f"engine {n} ...", file=sys.stderr))
     results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
-                              integrator=a.integrator)  # fmt: skip
+                              integrator=a.integrator, selftest=a.selftest)  # fmt: skip
     write_engine_reports(results, out, figures=not a.no_figures)
     if a.json:
         from .report import jsonable
@@ -73,6 +73,8 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--integrator", default=None, metavar="NAME",
                    help=f"MuJoCo integrator for engines that follow the model file "
                    f"({', '.join(INTEGRATORS)}; default: the file's)")  # fmt: skip
+    p.add_argument("--selftest", action="store_true",
+                   help="also inject the fault catalogue into each rigid-body engine")  # fmt: skip
     p.add_argument("--threads", type=int, default=None, help="worker threads (default: all cores)")
     p.add_argument("--out", default="cip-engines-out", help="output directory")
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")

@@ -106,9 +106,14 @@ def _value(checks: list[Check], name: str, key: str) -> Any:
 
 def validate_engine(
     name: str, profile: Profile | str = "quick", seed: int | None = None,
-    threads: int | None = None, integrator: str | None = None,
+    threads: int | None = None, integrator: str | None = None, selftest: bool = False,
 ) -> dict[str, Any]:  # fmt: skip
-    """Every check of one engine (see the module docstring); ``seed`` replaces the profile's."""
+    """Every check of one engine (see the module docstring); ``seed`` replaces the profile's.
+
+    ``selftest`` also injects the fault catalogue at a rigid-body engine's boundary
+    (:func:`validation.selftest.run_selftest`, seed 1, 2 realisations) and reports
+    how many applicable faults its checks flag.
+    """
     prof = _profile(profile, seed)
     reason = availability(name)
     if reason is not None:
@@ -135,6 +140,21 @@ def validate_engine(
             m: _value(checks, f"delay.{m}", "measured_steps") for m in MODEL_NAMES
         }
         row["rod_stretch"] = _value(checks, "twin.rod.coupled", "stretch_relative_l2")
+        if selftest:
+            from .selftest import run_selftest
+
+            clean, faults = run_selftest(1, 2, engine=name, integrator=integrator)
+            ran = [f for f in faults if f["flagged"] is not None]
+            row["selftest"] = {"clean_failures": clean, "flagged": sum(f["flagged"] for f in ran),
+                               "applicable": len(ran), "faults": faults}  # fmt: skip
+            checks.append(Check(
+                name="selftest.faults_flagged",
+                status=PASS if not clean and all(f["flagged"] for f in ran) else FAIL,
+                values={"flagged": row["selftest"]["flagged"], "applicable": len(ran),
+                        "missed": [f["fault"] for f in ran if not f["flagged"]]},
+                tolerance="the unmodified engine passes its direct checks and every applicable "
+                "catalogued fault fails one", details="seed 1, 2 realisations",
+            ))  # fmt: skip
     else:
         checks = _reference_checks(engine, name, prof, threads)
         row["trajectory_distance"] = {
@@ -183,6 +203,7 @@ def compare_engines(
     threads: int | None = None,
     progress: Any = None,
     integrator: str | None = None,
+    selftest: bool = False,
 ) -> dict[str, Any]:
     """Rows of :func:`validate_engine` for ``names`` plus speed ratios to MuJoCo on the CPU."""
     prof = _profile(profile, seed)
@@ -190,7 +211,7 @@ def compare_engines(
     for n in names:
         if progress:
             progress(n)
-        rows.append(validate_engine(n, prof, None, threads, integrator))
+        rows.append(validate_engine(n, prof, None, threads, integrator, selftest))
     base = next((r for r in rows if r["engine"] == SPEED_BASELINE and "throughput" in r), None)
     for r in rows:
         if base is not None and "throughput" in r:
@@ -211,6 +232,10 @@ def _g(v: Any, fmt: str = ".3g") -> str:
     return format(v, fmt)
 
 
+def _selftest_cell(st: dict | None) -> str:
+    return "not run" if st is None else f"{st['flagged']} of {st['applicable']}"
+
+
 def markdown(results: dict[str, Any]) -> str:
     """The cross-engine table (one row per engine) and each engine's failed checks."""
     lines = [
@@ -224,12 +249,13 @@ def markdown(results: dict[str, Any]) -> str:
         "",
         "| engine | verdict | family | precision | integrator | rod | twin distance single "
         "| twin distance coupled | twin tolerance | rod stretch vs twin | delay (steps) "
-        "| reduced distance coupled | failed checks | steps/s | ratio to MuJoCo CPU |",
-        "|" + "---|" * 15,
+        "| reduced distance coupled | faults flagged | failed checks | steps/s "
+        "| ratio to MuJoCo CPU |",
+        "|" + "---|" * 16,
     ]
     for r in results["engines"]:
         if r["status"] == "skipped":
-            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 12)
+            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 13)
                          + f" | skipped: {r['reason'].replace('|', '/')} |")  # fmt: skip
             continue
         c = r["capabilities"]
@@ -243,7 +269,8 @@ def markdown(results: dict[str, Any]) -> str:
             f"| {_g(tw.get('single'))} | {_g(tw.get('coupled'))} | {_g(r.get('twin_tolerance'))} "
             f"| {_g(r.get('rod_stretch'))} "
             f"| {'/'.join(str(delay[m]) for m in MODEL_NAMES) if delay else 'n/a'} "
-            f"| {_g(r['trajectory_distance'].get('coupled'))} | {len(r['failed'])} "
+            f"| {_g(r['trajectory_distance'].get('coupled'))} "
+            f"| {_selftest_cell(r.get('selftest'))} | {len(r['failed'])} "
             f"| {_g(tp['realization_steps_per_s'], '.3e')} "
             f"| {_g(tp.get('ratio_to_' + SPEED_BASELINE))} |"
         )
