@@ -173,9 +173,11 @@ ENGINE: Any = WarpEngine(
     probe=unavailable_reason,
     max_threads=1,
     notes=_notes(),
-    # float32: declared from the floors measured against float64 MuJoCo (module
-    # docstring: 1.8e-7 single, 6.2e-3 coupled at 1e-6 m over 1 s, the rod's float32
-    # resolution); not yet measured against the twin over the check's 10 s
+    # float32 floor against the twin (benchmarks/twin_floor.py --engines mujoco-warp,
+    # warp's CPU device, 1e-6 m, 1 realisation x 2 s, seed 1): 9.1e-7 single, 6.7e-3
+    # coupled (the rod's float32 resolution; 5.9e-5 at 1e-4 m); the rod's stretch is
+    # float32 noise there (8e4 times the twin's).  Tolerances about ten times those
+    # floors (not measured over the check's full 10 s)
     twin_tolerance=5e-2,
-    rod_tolerance=0.5,
+    rod_tolerance=1e6,
 )
