@@ -119,3 +119,13 @@ def test_integrator_is_set_in_the_model_file_and_refused_where_fixed(capsys) -> 
     _engine("drake")
     assert main(["selftest", "--engine", "drake", "--integrator", "RK4"]) == 2
     assert "it steps with SAP" in capsys.readouterr().err
+
+
+def test_a_baseline_of_another_engine_is_refused(tmp_path, capsys) -> None:
+    """A regression run compares an engine with a baseline of the same engine and integrator."""
+    from validation.cli import main
+
+    argv = ["run", "--baseline", "validation/data/baseline_quick.json", "--out", str(tmp_path)]
+    assert main([*argv, "--integrator", "RK4"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "was made with engine 'mujoco'" in err[0]

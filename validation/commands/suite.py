@@ -61,6 +61,15 @@ def cmd_run(a: argparse.Namespace) -> int:
         )
     files = model_files(a.mjcf)  # a bad model file is refused before any work
     check_engine_options(a)
+    if baseline is not None:
+        made = baseline.get("engine") or {}  # baselines without the record are MuJoCo's
+        b_engine, b_integ = made.get("name", "mujoco"), made.get("integrator_requested")
+        if (b_engine, b_integ) != (a.engine, a.integrator):
+            raise ParameterError(
+                f"--baseline: {a.baseline!r} was made with engine {b_engine!r} (integrator "
+                f"{b_integ or 'of the file'}), this run uses {a.engine!r} (integrator "
+                f"{a.integrator or 'of the file'})"
+            )
     out = check_out_dir("--out", a.out)
     note = compile_note()
     if note:
