@@ -58,6 +58,18 @@ class RigidBodyEngine:
     returns a reason the engine cannot run here (e.g. no GPU); ``max_threads``
     caps the realisation blocks run concurrently (1 for engines that batch all
     realisations in one call).
+
+    What the validation needs to know about the discretisation: ``integrators``
+    are the MuJoCo integrators the engine steps as the model file's ``<option
+    integrator>`` says (empty: the engine has its own stepper,
+    :attr:`cipcore.engine.Capabilities.integrator`, whatever the file says);
+    ``twin_builder`` maps a model file's :class:`cip.mjcf_params.ModelMapping` to
+    the keyword arguments of ``reduced.twin.TwinParams`` of the engine's exact
+    twin (default :meth:`twin_terms`: the file's terms, soft rod, the file's
+    integrator); ``twin_tolerance`` is the largest relative L2 distance of the
+    balancing errors to that twin at 1e-6 m, set from the engine's measured floor
+    (``benchmarks/twin_floor.py``; a dict gives one per model where the floors
+    differ), and ``rod_tolerance`` the same for the rod's stretch (tip 1 - tip 2).
     """
 
     name: str
@@ -70,7 +82,7 @@ class RigidBodyEngine:
     notes: str = ""
     integrators: tuple[str, ...] = ("Euler",)
     twin_builder: Callable[[ModelMapping], dict[str, Any]] | None = None
-    twin_tolerance: float = 1e-9
+    twin_tolerance: float | dict[str, float] = 1e-9
     rod_tolerance: float = 1e-3
     _why: str | None = field(default=None, init=False, repr=False)
 
@@ -88,6 +100,11 @@ class RigidBodyEngine:
 
     def _backend(self) -> type[RolloutBackend]:
         return self.backend()
+
+    def twin_tolerance_for(self, model: str) -> float:
+        """The twin tolerance of ``model`` (one number, or one per model where floors differ)."""
+        tol = self.twin_tolerance
+        return float(tol[model]) if isinstance(tol, dict) else float(tol)
 
     def rollout(self) -> type[RolloutBackend]:
         """The engine's :class:`cip.runner.RolloutBackend` class (what a fault wraps)."""

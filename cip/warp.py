@@ -178,6 +178,6 @@ ENGINE: Any = WarpEngine(
     # coupled (the rod's float32 resolution; 5.9e-5 at 1e-4 m); the rod's stretch is
     # float32 noise there (8e4 times the twin's).  Tolerances about ten times those
     # floors (not measured over the check's full 10 s)
-    twin_tolerance=5e-2,
+    twin_tolerance={"single": 1e-5, "coupled": 5e-2},
     rod_tolerance=1e6,
 )

@@ -184,7 +184,7 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
     names = {c["name"] for c in m["checks"]}
     assert {"twin.trajectory.coupled", "twin.rod.coupled", "delay.single"} <= names
     assert not [f for f in m["failed"] if f.startswith(("twin.", "delay.", "model."))]
-    assert m["twin_distance"]["coupled"] < m["twin_tolerance"]
+    assert m["twin_distance"]["coupled"] < m["twin_tolerance"]["coupled"]
     assert m["delay_steps"] == {"single": 100, "coupled": 100}
     assert m["throughput"]["ratio_to_mujoco"] == 1.0
     assert 0 < m["trajectory_distance"]["coupled"] < 1e-2

@@ -41,14 +41,14 @@ def test_twin_steps_as_mujoco_for_each_integrator(model: str, integrator: str) -
     """MuJoCo stepping RK4 or implicitfast meets its own twin at the floor, not the Euler twin."""
     d, eng, tw = _twin_distance("mujoco", model, integrator)
     assert tw.integrator == integrator
-    assert d < eng.twin_tolerance
+    assert d < eng.twin_tolerance_for(model)
     euler = TwinParams(**{**tw.as_dict(), "integrator": "Euler"})
     m = model_file(model, None, integrator)
     p = BalanceParams(beta=BETA[model])
     kw = {"amplitude": 1e-6, "fields": ("balancing_error",)}
     full = eng.simulate(model, p, 2.0, 2, 3, physical=read_mapping(m).physical(), mj_model=m, **kw)
     e_euler = simulate_twin(model, p, euler, 2.0, 2, 3, **kw)["balancing_error"]
-    assert relative_l2(full["balancing_error"], e_euler) > 1e3 * eng.twin_tolerance
+    assert relative_l2(full["balancing_error"], e_euler) > 1e3 * eng.twin_tolerance_for(model)
 
 
 @pytest.mark.parametrize("model", ["single", "coupled"])
@@ -56,7 +56,7 @@ def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
     """Drake's SAP step with its near-rigid rod is matched to the twin's floor."""
     d, eng, _ = _twin_distance("drake", model, None, duration=1.0)
     assert eng.capabilities.rod == "rigid" and eng.capabilities.twin
-    assert d < eng.twin_tolerance
+    assert d < eng.twin_tolerance_for(model)
 
 
 @pytest.mark.parametrize("name", ["mujoco", "drake"])

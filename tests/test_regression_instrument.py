@@ -20,7 +20,7 @@ from validation.faults import CATALOGUE, make_fault
 from validation.selftest import run_selftest
 
 BETA = {"single": 20.306, "coupled": 21.032}
-TWIN_TOLERANCE = get_engine("mujoco").twin_tolerance
+TWIN_TOLERANCE = get_engine("mujoco").twin_tolerance_for("coupled")
 
 
 def _pair(model, amplitude, twin_params=None, duration=2.0):

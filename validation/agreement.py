@@ -747,10 +747,11 @@ def instrument_checks(
         checks.append(
             Check(
                 name=f"twin.trajectory.{model}",
-                status=PASS if complete and rel <= eng.twin_tolerance else FAIL,
+                status=PASS if complete and rel <= eng.twin_tolerance_for(model) else FAIL,
                 values={"relative_l2": rel, "complete": complete},
                 tolerance=f"relative L2 distance of the balancing errors to the engine's exact "
-                f"linear twin <= {eng.twin_tolerance:g} (the engine's twin_tolerance, from its "
+                f"linear twin <= {eng.twin_tolerance_for(model):g} (the engine's twin_tolerance, "
+                "from its "
                 "measured floor)",
                 details=details,
             )

@@ -240,8 +240,9 @@ def _engine_record(
         if eng.integrators else eng.capabilities.integrator
         for m in PAPER_BETA
     }  # fmt: skip
+    tolerance = {m: eng.twin_tolerance_for(m) for m in PAPER_BETA}
     return {"name": engine, "integrator_requested": integrator, "integrator": ran,
-            "capabilities": eng.capabilities.as_dict(), "twin_tolerance": eng.twin_tolerance,
+            "capabilities": eng.capabilities.as_dict(), "twin_tolerance": tolerance,
             "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
