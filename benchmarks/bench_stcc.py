@@ -1,4 +1,4 @@
-"""Cost of the STCC (eq. STCC) and of its Bartlett significance level at the paper's settings.
+"""Cost of the STCC (eq. (8)) and of its Bartlett significance level at the paper's settings.
 
     python benchmarks/bench_stcc.py [--realizations 4] [--duration 1200]
 

@@ -1,11 +1,16 @@
-"""The exact twin's floor: full MuJoCo model vs its linear twin under the same noise.
+"""Each engine's floor against its exact twin, by amplitude, under the same noise.
 
-    python benchmarks/twin_floor.py [--seed 1] [--realizations 4] [--duration 10]
+    python benchmarks/twin_floor.py [--engines mujoco,mjx,drake] [--integrators Euler,RK4]
+                                    [--seed 1] [--realizations 4] [--duration 10]
 
-Prints, per model and initial amplitude, the relative L2 distance of the
-balancing errors (full vs twin, and full vs the paper's reduced model) and the
-largest angle.  Below ~1e-7 m (coupled) the rod's absolute round-off sets the
-floor; above it the angles' second-order terms (growing as amplitude^2).
+Prints, per engine, integrator, model and initial amplitude, the relative L2
+distance of the balancing errors (engine vs its own twin,
+:meth:`cip.engines.RigidBodyEngine.twin_terms`, and engine vs the paper's reduced
+model), the rod's stretch against the twin's (coupled) and the largest angle.
+Below ~1e-7 m (coupled) the rod's absolute round-off sets the floor; above it
+the angles' second-order terms (growing as amplitude^2).  Each engine's
+``twin_tolerance`` is set from the floor at 1e-6 m (the check's amplitude).
+An engine with its own stepper runs once, whatever ``--integrators`` says.
 """
 
 from __future__ import annotations
@@ -14,39 +19,55 @@ import argparse
 
 import numpy as np
 
-from cip.mjcf_params import load_model_file, read_mapping, shipped_model_path
-from cip.simulate import simulate_full
+from cip.mjcf_params import read_mapping
+from cipcore.registry import availability
 from reduced import BalanceParams, simulate
 from reduced.twin import TwinParams, simulate_twin
+from validation.agreement import model_file, rigid_engine
+from validation.metrics import relative_l2
 from validation.profiles import PAPER_BETA
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
+    ap.add_argument("--engines", default="mujoco")
+    ap.add_argument("--integrators", default="Euler")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--realizations", type=int, default=4)
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--amplitudes", default="1e-8,1e-7,1e-6,1e-5,1e-4")
     a = ap.parse_args()
-    print(
-        f"{'model':<8} {'amplitude':>9} {'full-twin':>10} {'full-reduced':>12} {'max|theta|':>10}"
-    )
-    for model, beta in PAPER_BETA.items():
-        m = load_model_file(shipped_model_path(model))
-        mp = read_mapping(m)
-        p = BalanceParams(beta=beta)
-        tw = TwinParams(**mp.twin_terms())
-        for amp in (float(x) for x in a.amplitudes.split(",")):
-            kw = {"amplitude": amp, "fields": ("balancing_error",)}
-            args = (a.duration, a.realizations, a.seed)
-            full = simulate_full(model, p, *args, physical=mp.physical(), mj_model=m,
-                                 fields=("balancing_error", "angle"), amplitude=amp)  # fmt: skip
-            et = simulate_twin(model, p, tw, *args, **kw)["balancing_error"]
-            er = simulate(model, p, *args, **kw)["balancing_error"]
-            ef = full["balancing_error"]
-            print(f"{model:<8} {amp:>9.0e} {np.linalg.norm(ef - et) / np.linalg.norm(et):>10.2e} "
-                  f"{np.linalg.norm(ef - er) / np.linalg.norm(er):>12.2e} "
-                  f"{np.max(full.attrs['max_abs_angle']):>10.2e}")  # fmt: skip
+    print(f"{'engine':<12} {'integrator':<12} {'model':<8} {'amplitude':>9} {'engine-twin':>11} "
+          f"{'rod':>9} {'engine-reduced':>14} {'max|theta|':>10}")  # fmt: skip
+    for name in a.engines.split(","):
+        if availability(name) is not None:
+            print(f"{name:<12} skipped: {availability(name)}")
+            continue
+        eng = rigid_engine(name)
+        integrators = [i for i in a.integrators.split(",") if i in eng.integrators] or [None]
+        for integ in integrators:
+            for model, beta in PAPER_BETA.items():
+                m = model_file(model, None, integ)
+                mp = read_mapping(m)
+                p = BalanceParams(beta=beta)
+                tw = TwinParams(**eng.twin_terms(mp))
+                for amp in (float(x) for x in a.amplitudes.split(",")):
+                    f = ("balancing_error", "tip_position")
+                    args = (a.duration, a.realizations, a.seed)
+                    full = eng.simulate(model, p, *args, physical=mp.physical(), mj_model=m,
+                                        fields=(*f, "angle"), amplitude=amp)  # fmt: skip
+                    twin = simulate_twin(model, p, tw, *args, amplitude=amp, fields=f)
+                    er = simulate(model, p, *args, amplitude=amp, fields=f)["balancing_error"]
+                    ef, et = full["balancing_error"], twin["balancing_error"]
+                    rod = float("nan")
+                    if mp.n_controllers == 2:
+                        sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
+                        st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
+                        rod = relative_l2(sf, st)
+                    print(f"{name:<12} {tw.integrator:<12} {model:<8} {amp:>9.0e} "
+                          f"{relative_l2(ef, et):>11.2e} {rod:>9.2e} "
+                          f"{relative_l2(ef, er):>14.2e} "
+                          f"{np.max(full.attrs['max_abs_angle']):>10.2e}", flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -45,6 +45,8 @@ import numpy as np
 
 from cipcore.params import ParameterError
 
+from .names import ROD, cart_damper, cart_joint, hinge_joint, motor, tip_damper, tip_site
+
 _OBJ = mujoco.mjtObj
 
 
@@ -94,14 +96,14 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
     damping actuator other than an affine velocity bias.
     """
     nc = 0
-    while mujoco.mj_name2id(m, _OBJ.mjOBJ_JOINT, f"x_M{nc + 1}") >= 0:
+    while mujoco.mj_name2id(m, _OBJ.mjOBJ_JOINT, cart_joint(nc + 1)) >= 0:
         nc += 1
     if nc == 0:
         raise ParameterError("the MuJoCo model has no cart joint x_M1: not a CIP model")
     rows: dict[str, list] = {k: [] for k in CIPGeometry.__dataclass_fields__}
     for i in range(1, nc + 1):
-        jx = _id(m, _OBJ.mjOBJ_JOINT, f"x_M{i}")
-        jt = _id(m, _OBJ.mjOBJ_JOINT, f"theta_{i}")
+        jx = _id(m, _OBJ.mjOBJ_JOINT, cart_joint(i))
+        jt = _id(m, _OBJ.mjOBJ_JOINT, hinge_joint(i))
         if not np.array_equal(m.jnt_axis[jx], [1, 0, 0]) or not np.array_equal(
             m.jnt_axis[jt], [0, 1, 0]
         ):
@@ -111,17 +113,17 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
             raise ParameterError("the pendulum's hinge must sit at the cart's origin")
         if not np.array_equal(m.body_iquat[pend], [1, 0, 0, 0]):
             raise ParameterError("the bob's inertia must be given in the pendulum frame")
-        tip = _id(m, _OBJ.mjOBJ_SITE, f"tip_{i}")
+        tip = _id(m, _OBJ.mjOBJ_SITE, tip_site(i))
         L = float(m.site_pos[tip][2])
         if not np.allclose(m.body_ipos[pend], [0, 0, L], rtol=0, atol=1e-15):
             raise ParameterError("the bob's mass must sit at the tip site")
         dampers = []
-        for name in (f"tip_damping_{i}", f"cart_damping_{i}"):
+        for name in (tip_damper(i), cart_damper(i)):
             a = _id(m, _OBJ.mjOBJ_ACTUATOR, name)
             if m.actuator_biastype[a] != mujoco.mjtBias.mjBIAS_AFFINE or m.actuator_gainprm[a][0]:
                 raise ParameterError(f"actuator {name} must be an affine velocity bias")
             dampers.append(-float(m.actuator_biasprm[a][2] * m.actuator_gear[a][0] ** 2))
-        u = _id(m, _OBJ.mjOBJ_ACTUATOR, f"u_{i}")
+        u = _id(m, _OBJ.mjOBJ_ACTUATOR, motor(i))
         rows["cart_mass"].append(float(m.body_mass[cart]))
         rows["cart_x0"].append(float(m.body_pos[cart][0]))
         rows["bob_mass"].append(float(m.body_mass[pend]))
@@ -137,8 +139,8 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
         rows["dof_theta"].append(int(m.jnt_dofadr[jt]))
     rod = None
     equality_on = not m.opt.disableflags & int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
-    if nc == 2 and equality_on and m.eq_active0[_id(m, _OBJ.mjOBJ_EQUALITY, "rod")]:
-        rod = float(m.tendon_length0[_id(m, _OBJ.mjOBJ_TENDON, "rod")])
+    if nc == 2 and equality_on and m.eq_active0[_id(m, _OBJ.mjOBJ_EQUALITY, ROD)]:
+        rod = float(m.tendon_length0[_id(m, _OBJ.mjOBJ_TENDON, ROD)])
     return CIPGeometry(
         n_controllers=nc,
         timestep=float(m.opt.timestep),
@@ -198,11 +200,11 @@ def build_plant(g: CIPGeometry) -> DrakeCIP:
             )
         )
         jx = plant.AddJoint(
-            PrismaticJoint(f"x_M{i + 1}", rail, cart.body_frame(), np.array([1.0, 0.0, 0.0]))
+            PrismaticJoint(cart_joint(i + 1), rail, cart.body_frame(), np.array([1.0, 0.0, 0.0]))
         )
         jt = plant.AddJoint(
             RevoluteJoint(
-                f"theta_{i + 1}", cart.body_frame(), pend.body_frame(), np.array([0.0, 1.0, 0.0])
+                hinge_joint(i + 1), cart.body_frame(), pend.body_frame(), np.array([0.0, 1.0, 0.0])
             )
         )
         joints.append((jx, jt))

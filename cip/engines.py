@@ -9,12 +9,13 @@ states over a delay chunk.  :data:`MUJOCO` is MuJoCo on the CPU.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 
-from cipcore.engine import Capabilities
+from cipcore.engine import Capabilities, LyapunovOptions, SimulateOptions
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
@@ -22,6 +23,7 @@ from cipcore.schema import Trajectory
 
 from .linearize import linearize
 from .lyapunov import lyapunov_full
+from .mjcf_params import INTEGRATOR_NAMES, ModelMapping
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
 from .simulate import simulate_full
@@ -56,6 +58,18 @@ class RigidBodyEngine:
     returns a reason the engine cannot run here (e.g. no GPU); ``max_threads``
     caps the realisation blocks run concurrently (1 for engines that batch all
     realisations in one call).
+
+    What the validation needs to know about the discretisation: ``integrators``
+    are the MuJoCo integrators the engine steps as the model file's ``<option
+    integrator>`` says (empty: the engine has its own stepper,
+    :attr:`cipcore.engine.Capabilities.integrator`, whatever the file says);
+    ``twin_builder`` maps a model file's :class:`cip.mjcf_params.ModelMapping` to
+    the keyword arguments of ``reduced.twin.TwinParams`` of the engine's exact
+    twin (default :meth:`twin_terms`: the file's terms, soft rod, the file's
+    integrator); ``twin_tolerance`` is the largest relative L2 distance of the
+    balancing errors to that twin at 1e-6 m, set from the engine's measured floor
+    (``benchmarks/twin_floor.py``; a dict gives one per model where the floors
+    differ), and ``rod_tolerance`` the same for the rod's stretch (tip 1 - tip 2).
     """
 
     name: str
@@ -66,6 +80,10 @@ class RigidBodyEngine:
     max_threads: int | None = None
     linearizer: Any = None
     notes: str = ""
+    integrators: tuple[str, ...] = ("Euler",)
+    twin_builder: Callable[[ModelMapping], dict[str, Any]] | None = None
+    twin_tolerance: float | dict[str, float] = 1e-9
+    rod_tolerance: float = 1e-3
     _why: str | None = field(default=None, init=False, repr=False)
 
     def unavailable(self) -> str | None:
@@ -82,6 +100,28 @@ class RigidBodyEngine:
 
     def _backend(self) -> type[RolloutBackend]:
         return self.backend()
+
+    def twin_tolerance_for(self, model: str) -> float:
+        """The twin tolerance of ``model`` (one number, or one per model where floors differ)."""
+        tol = self.twin_tolerance
+        return float(tol[model]) if isinstance(tol, dict) else float(tol)
+
+    def rollout(self) -> type[RolloutBackend]:
+        """The engine's :class:`cip.runner.RolloutBackend` class (what a fault wraps)."""
+        return self._backend()
+
+    def twin_terms(self, mapping: ModelMapping) -> dict[str, Any]:
+        """Keyword arguments of :class:`reduced.twin.TwinParams` for this engine's exact twin."""
+        if self.twin_builder is not None:
+            return self.twin_builder(mapping)
+        integrator = mapping.integrator
+        if not self.integrators:
+            # its own stepper: the twin steps it where MuJoCo has it; an engine without an
+            # exact twin (capabilities.twin None) is held to the semi-implicit Euler twin
+            # at its declared twin_tolerance
+            own = self.capabilities.integrator
+            integrator = own if own in INTEGRATOR_NAMES.values() else "Euler"
+        return {**mapping.twin_terms(), "integrator": integrator}
 
     def runner(
         self,
@@ -106,14 +146,18 @@ class RigidBodyEngine:
         duration: float,
         n_realizations: int = 1,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[SimulateOptions],
     ) -> Trajectory:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
-        return simulate_full(
+        options.setdefault("backend", self._backend())
+        tr = simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
-            backend=self._backend(), engine_name=self.name, **options,
+            engine_name=self.name, **options,
         )  # fmt: skip
+        if not self.integrators:  # the engine's own stepper ran, whatever the file says
+            tr.attrs["stepper"] = self.capabilities.integrator
+        return tr
 
     def lyapunov(
         self,
@@ -122,14 +166,14 @@ class RigidBodyEngine:
         duration: float,
         n_realizations: int = 8,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult:
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
+        options.setdefault("backend", self._backend())
         return lyapunov_full(
-            get_model(model).name, params, duration, n_realizations, seed,
-            backend=self._backend(), **options,
-        )  # fmt: skip
+            get_model(model).name, params, duration, n_realizations, seed, **options
+        )
 
     def linearize(self, model: BalanceModel | str, physical: CIPParams | None = None):
         """The engine's linearisation about upright beside the reduced model's
@@ -149,8 +193,13 @@ MUJOCO = RigidBodyEngine(
         deterministic=True,
         family="MuJoCo",
         trajectory_tolerance=1e-2,
+        integrator="Euler",
+        rod="soft",
+        twin="the model file's terms, its soft rod (solref/solimp) and its integrator "
+        "(Euler, implicit, implicitfast or RK4) as MuJoCo defines them",
     ),
     backend=lambda: MujocoRollout,
+    integrators=("Euler", "implicit", "implicitfast", "RK4"),
     linearizer=linearize,
     notes="MuJoCo C engine, mujoco.rollout across threads",
 )

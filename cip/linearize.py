@@ -9,7 +9,7 @@ are physics, not solver noise), then are transformed to
 * coupled:  x = (q_T, q_M1, q_M2, delta, and rates),    q_T = (x_T1 + x_T2)/2,
             delta = x_T1 - x_T2 (the rod's stretch, zero for a rigid rod)
 
-and compared with the reduced model's matrices (eqs. bormann04:TM, sss08:TM).
+and compared with the reduced model's matrices (eqs. (3), (5)).
 The rigid body differs from the reduced model by small terms, predicted here
 to first order and checked by the tests:
 
@@ -31,6 +31,7 @@ from cipcore.models import get_model
 from cipcore.params import BalanceParams
 
 from .model import CIPParams, bob_rotational_inertia, build
+from .names import cart_joint, hinge_joint, motor
 
 
 @dataclass
@@ -133,9 +134,9 @@ def linearize(model: str, physical: CIPParams | None = None, eps: float = 1e-6) 
     L, M = p.pendulum_length, p.cart_mass
     names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, j) for j in range(m.njnt)]
     nc = get_model(model).n_controllers
-    ix = [m.jnt_dofadr[names.index(f"x_M{i + 1}")] for i in range(nc)]
-    it = [m.jnt_dofadr[names.index(f"theta_{i + 1}")] for i in range(nc)]
-    iu = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i + 1}") for i in range(nc)]
+    ix = [m.jnt_dofadr[names.index(cart_joint(i + 1))] for i in range(nc)]
+    it = [m.jnt_dofadr[names.index(hinge_joint(i + 1))] for i in range(nc)]
+    iu = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(i + 1)) for i in range(nc)]
     nv = m.nv
     # position map P: reduced-coordinate positions = P @ qpos (and the same for rates)
     P = np.zeros((nv, nv))

@@ -30,6 +30,7 @@ import numpy as np
 from cipcore.params import ParameterError
 
 from .model import MODEL_DIR, CIPParams
+from .names import ROD, cart_damper, cart_joint, hinge_joint, motor, tip_damper, tip_site
 
 #: Which model a file describes follows from how many balancers it has.
 MODEL_BY_CONTROLLERS = {1: "single", 2: "coupled"}
@@ -173,13 +174,13 @@ def _same(name: str, values: list[float]) -> float:
 def read_mapping(m: mujoco.MjModel) -> ModelMapping:
     """The mapping of a compiled CIP model (module docstring)."""
     J, S, A = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_ACTUATOR
-    nc = 2 if mujoco.mj_name2id(m, J, "theta_2") >= 0 else 1
+    nc = 2 if mujoco.mj_name2id(m, J, hinge_joint(2)) >= 0 else 1
     lengths, carts, tips, inertias, g_tip, g_cart = [], [], [], [], [], []
     for i in range(1, nc + 1):
-        jx = _id(m, J, f"x_M{i}", "joint")
-        jt = _id(m, J, f"theta_{i}", "joint")
-        site = _id(m, S, f"tip_{i}", "site")
-        _id(m, A, f"u_{i}", "actuator")
+        jx = _id(m, J, cart_joint(i), "joint")
+        jt = _id(m, J, hinge_joint(i), "joint")
+        site = _id(m, S, tip_site(i), "site")
+        _id(m, A, motor(i), "actuator")
         if m.jnt_type[jx] != mujoco.mjtJoint.mjJNT_SLIDE:
             raise ParameterError(f"model file: joint x_M{i} must be a slide joint")
         if m.jnt_type[jt] != mujoco.mjtJoint.mjJNT_HINGE:
@@ -198,9 +199,9 @@ def read_mapping(m: mujoco.MjModel) -> ModelMapping:
         carts.append(float(m.body_mass[m.jnt_bodyid[jx]]))
         tips.append(float(m.body_mass[body]))
         inertias.append(float(m.body_inertia[body][1]))
-        at = _id(m, A, f"tip_damping_{i}", "actuator")
-        ac = _id(m, A, f"cart_damping_{i}", "actuator")
-        for a, nm in ((at, f"tip_damping_{i}"), (ac, f"cart_damping_{i}")):
+        at = _id(m, A, tip_damper(i), "actuator")
+        ac = _id(m, A, cart_damper(i), "actuator")
+        for a, nm in ((at, tip_damper(i)), (ac, cart_damper(i))):
             if m.actuator_biastype[a] != mujoco.mjtBias.mjBIAS_AFFINE or m.actuator_gainprm[a][0]:
                 raise ParameterError(f"model file: actuator {nm} must be affine-bias, gain 0")
         g_tip.append(-float(m.actuator_biasprm[at][2]) / tips[-1])
@@ -210,8 +211,8 @@ def read_mapping(m: mujoco.MjModel) -> ModelMapping:
         raise ParameterError(f"model file: gravity must point along -z, got {list(grav)}")
     solref = solimp = invw = None
     if nc == 2:
-        ten = _id(m, mujoco.mjtObj.mjOBJ_TENDON, "rod", "tendon")
-        eq = _id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "rod", "equality")
+        ten = _id(m, mujoco.mjtObj.mjOBJ_TENDON, ROD, "tendon")
+        eq = _id(m, mujoco.mjtObj.mjOBJ_EQUALITY, ROD, "equality")
         solref = (float(m.eq_solref[eq][0]), float(m.eq_solref[eq][1]))
         solimp = tuple(float(v) for v in m.eq_solimp[eq][:3])
         invw = float(m.tendon_invweight0[ten])

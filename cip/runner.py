@@ -30,6 +30,7 @@ from cipcore.models import get_model
 from cipcore.params import BalanceParams, ParameterError
 
 from .model import CIPParams, build
+from .names import cart_joint, hinge_joint, motor
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -38,7 +39,7 @@ STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 class Controller:
     """The control law on the carts.
 
-    kind "delayed-random-gain":  F_i = M beta R_i(t) e_i(t - tau)  (paper eq. sss08:TM)
+    kind "delayed-random-gain":  F_i = M beta R_i(t) e_i(t - tau)  (paper eq. (5))
     kind "pd":                   F_i = M (kp e_i(t - tau) + kd e_i'(t - tau))
     (the PD-controlled CIP of the authors' earlier work, with the same delay;
     tau may be one step for an undelayed PD).
@@ -140,15 +141,15 @@ class CIPRunner:
         self.nstate = mujoco.mj_stateSize(self.m, STATE_SPEC)
         qpos0 = 1  # time comes first in mjSTATE_FULLPHYSICS
         qvel0 = 1 + self.m.nq
-        ix = [names.index(f"x_M{i + 1}") for i in range(self.nc)]
-        it = [names.index(f"theta_{i + 1}") for i in range(self.nc)]
+        ix = [names.index(cart_joint(i + 1)) for i in range(self.nc)]
+        it = [names.index(hinge_joint(i + 1)) for i in range(self.nc)]
         self.i_x = np.array([qpos0 + self.m.jnt_qposadr[j] for j in ix])
         self.i_th = np.array([qpos0 + self.m.jnt_qposadr[j] for j in it])
         self.i_vx = np.array([qvel0 + self.m.jnt_dofadr[j] for j in ix])
         self.i_om = np.array([qvel0 + self.m.jnt_dofadr[j] for j in it])
         self.i_u = np.array(
             [
-                mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i + 1}")
+                mujoco.mj_name2id(self.m, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(i + 1))
                 for i in range(self.nc)
             ]
         )

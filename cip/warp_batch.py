@@ -14,14 +14,14 @@ Two ways of driving a batch of worlds (one world per realisation, float32):
   slots (an integer index, never a time lookup: float32 time would drift),
   overwrites it with e_i(n) = L sin(theta_i(n)), and sets the cart force
 
-      F_i(n) = M beta (1 + nu xi_{i,n} / sqrt(dt)) e_i(n - d)        (paper eq. sss08:TM)
+      F_i(n) = M beta (1 + nu xi_{i,n} / sqrt(dt)) e_i(n - d)        (paper eq. (5))
 
   from the draws xi of the chunk, uploaded once per chunk.  The draws are made
   on the host by :class:`cipcore.noise.GainNoise` (one PCG64 stream per
   realisation), so the same seed means the same draws as in every other engine.
   Many grid points can share one batch (world ``w`` is realisation ``w // P`` of
   point ``w % P``, matching MuJoCo Warp's per-world model fields, indexed
-  ``world % batch``): see :func:`validation.gpu_sweep`.
+  ``world % batch``): see :func:`validation.sweeps.gpu`.
 
 On a CUDA device each chunk of steps (control kernel, ``mujoco_warp.step``,
 recording) is captured once as a CUDA graph (``wp.ScopedCapture``) and replayed;
@@ -39,6 +39,8 @@ import warp as wp
 
 wp.config.quiet = True  # before mujoco_warp initialises warp: no banner
 import mujoco_warp as mjw  # noqa: E402
+
+from .names import cart_joint, hinge_joint, motor  # noqa: E402
 
 wp.init()
 
@@ -62,7 +64,7 @@ def _delayed_gain_control(
     ctrl: wp.array2d(dtype=f32),
     max_angle: wp.array(dtype=f32),
 ):
-    """ctrl of step n = step[0] + k from the ring slot n mod d (eq. sss08:TM); slot <- e(n)."""
+    """ctrl of step n = step[0] + k from the ring slot n mod d (eq. (5)); slot <- e(n)."""
     w = wp.tid()
     slot = (step[0] + k) % delay[w]
     for c in range(th_adr.shape[0]):
@@ -213,12 +215,12 @@ def _joint_addresses(m: mujoco.MjModel, nc: int) -> tuple[np.ndarray, ...]:
     def jid(name: str) -> int:
         return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
 
-    x = np.array([m.jnt_qposadr[jid(f"x_M{i + 1}")] for i in range(nc)])
-    th = np.array([m.jnt_qposadr[jid(f"theta_{i + 1}")] for i in range(nc)])
-    vx = np.array([m.jnt_dofadr[jid(f"x_M{i + 1}")] for i in range(nc)])
-    om = np.array([m.jnt_dofadr[jid(f"theta_{i + 1}")] for i in range(nc)])
+    x = np.array([m.jnt_qposadr[jid(cart_joint(i + 1))] for i in range(nc)])
+    th = np.array([m.jnt_qposadr[jid(hinge_joint(i + 1))] for i in range(nc)])
+    vx = np.array([m.jnt_dofadr[jid(cart_joint(i + 1))] for i in range(nc)])
+    om = np.array([m.jnt_dofadr[jid(hinge_joint(i + 1))] for i in range(nc)])
     u = np.array(
-        [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i + 1}") for i in range(nc)]
+        [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(i + 1)) for i in range(nc)]
     )
     return x, th, vx, om, u
 

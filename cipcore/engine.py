@@ -3,7 +3,7 @@
 An *engine* advances a batch of realisations of a balancing model
 (:mod:`cipcore.models`) under the paper's delayed random-gain feedback
 
-    F_i(t) = beta R_i(t) e_i(t - tau),   R_i = 1 + nu xi_i / sqrt(dt)      (eq. sss08:TM)
+    F_i(t) = beta R_i(t) e_i(t - tau),   R_i = 1 + nu xi_i / sqrt(dt)      (eq. (5))
 
 with the noise drawn from the shared per-realisation streams
 (:mod:`cipcore.noise`), so that the same seed means the same draws in every
@@ -20,7 +20,7 @@ entry in :data:`cipcore.registry.ENGINES` (or a ``cipval.engines`` entry point).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Protocol, TypedDict, Unpack, runtime_checkable
 
 import numpy as np
 
@@ -48,13 +48,17 @@ class Capabilities:
         at small amplitude that the engine's precision allows (the contract tests
         and ``cip-validate engines`` hold it to this).
     packs_points : True when a sweep should pack every grid point x realisation
-        into one batch (:mod:`validation.gpu_sweep`) instead of a point at a time.
-    integrator : the engine's time discretisation over one step dt (e.g. "Euler" for
-        semi-implicit Euler, "RK4", "generalized-alpha").
-    rod : how the coupled model's rod is held: "soft" (a regularised constraint),
-        "rigid" (a constraint solved to a tolerance) or "penalty" (a spring).
-    twin : the name of the exact discrete twin of this engine's discretisation, or
-        None where there is none.
+        into one batch (:mod:`validation.sweeps.gpu`) instead of a point at a time.
+    integrator : the time stepper, in MuJoCo's names ("Euler", "RK4",
+        "implicit", "implicitfast") for MuJoCo-family engines, else a
+        descriptive name ("SAP", "generalized-alpha", "semi-implicit Euler",
+        "RK-Merson (variable step)").
+    rod : how the rod between the tips is held: "soft" (MuJoCo's solref/solimp
+        spring-damper), "rigid" (an exact holonomic distance constraint) or
+        "penalty" (a spring of declared stiffness).
+    twin : a short statement of how the engine's exact linear twin is built
+        (:mod:`reduced.twin`), or None when no exact twin exists; such an engine
+        is held to a declared, justified tolerance that the report states.
     """
 
     precision: str
@@ -71,6 +75,48 @@ class Capabilities:
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+class SimulateOptions(TypedDict, total=False):
+    """The keyword options of :meth:`Engine.simulate` (an engine refuses others).
+
+    amplitude : initial balancing error (m).  decimate : record every n-th step.
+    fields : schema fields to record.  noise : a :class:`cipcore.noise.GainNoise`
+    or ``ArrayNoise`` instead of the seed's.  threads : worker threads.
+    progress : show a progress bar.  Rigid-body engines only: physical : the
+    rigid body's parameters (``cip.model.CIPParams``); mj_model : a compiled
+    model file run instead of the generator's; backend : the rollout backend
+    class (what a fault at the engine boundary wraps).  The reference only:
+    stepper : "semi-implicit" or "explicit".
+    """
+
+    amplitude: float
+    decimate: int
+    fields: tuple[str, ...]
+    dtype: Any
+    noise: Any
+    threads: int | None
+    max_bytes: int
+    progress: bool
+    physical: Any
+    mj_model: Any
+    backend: Any
+    stepper: str
+
+
+class LyapunovOptions(TypedDict, total=False):
+    """The keyword options of :meth:`Engine.lyapunov` (an engine refuses others):
+    threads, progress, transient (s), epsilon (m); rigid-body engines also
+    physical, mj_model and backend (as :class:`SimulateOptions`)."""
+
+    threads: int | None
+    progress: bool
+    transient: float | None
+    epsilon: float
+    physical: Any
+    mj_model: Any
+    backend: Any
+    stepper: str
 
 
 @runtime_checkable
@@ -118,7 +164,7 @@ class Engine(Protocol):
         duration: float,
         n_realizations: int = 1,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[SimulateOptions],
     ) -> Trajectory: ...
 
     def lyapunov(
@@ -128,5 +174,5 @@ class Engine(Protocol):
         duration: float,
         n_realizations: int = 8,
         seed: int = 0,
-        **options: Any,
+        **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult: ...

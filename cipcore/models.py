@@ -1,8 +1,8 @@
 """The balancing models as values.
 
 A :class:`BalanceModel` says how many delayed controllers act on one shared
-stick-tip coordinate: the paper's single balancer (eq. bormann04:TM, one
-controller) and two balancers whose tips a rigid rod joins (eq. sss08:TM, two
+stick-tip coordinate: the paper's single balancer (eq. (3), one
+controller) and two balancers whose tips a rigid rod joins (eq. (5), two
 controllers, one tip coordinate q_T).  Code asks a model for its number of
 controllers or its name; it never compares model names.
 """
@@ -35,8 +35,8 @@ class BalanceModel:
         return self.name
 
 
-SINGLE = BalanceModel("single", 1, "bormann04:TM", "one balancer (stick on a cart)")
-COUPLED = BalanceModel("coupled", 2, "sss08:TM", "two balancers whose stick tips a rigid rod joins")
+SINGLE = BalanceModel("single", 1, "(3)", "one balancer (stick on a cart)")
+COUPLED = BalanceModel("coupled", 2, "(5)", "two balancers whose stick tips a rigid rod joins")
 
 #: Every model, by name.
 MODELS: dict[str, BalanceModel] = {m.name: m for m in (SINGLE, COUPLED)}

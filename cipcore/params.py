@@ -1,6 +1,6 @@
 """Parameters of the reduced balancing models and their validation.
 
-The reduced models are eqs. (bormann04:TM) and (sss08:TM) of Yoshida, Higeta &
+The reduced models are eqs. ((3)) and ((5)) of Yoshida, Higeta &
 Watanabe (2011), section 2.  All quantities are per unit mass:
 
 ==========  ==========  =====================================================

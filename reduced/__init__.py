@@ -1,7 +1,7 @@
 """The paper's reduced linear balancing models (Yoshida, Higeta & Watanabe 2011, section 2).
 
-Single balancer (eq. bormann04:TM) and two balancers coupled through a rigid
-rod between the stick tips (eq. sss08:TM), under time-delayed feedback with a
+Single balancer (eq. (3)) and two balancers coupled through a rigid
+rod between the stick tips (eq. (5)), under time-delayed feedback with a
 white-noise random gain R_i(t) = 1 + nu*xi_i(t).
 """
 

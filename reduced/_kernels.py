@@ -1,7 +1,7 @@
 """Compiled hot loops of the reduced models (numba, cached, GIL released).
 
-One kernel covers the single model (C = 1, eq. bormann04:TM) and the coupled
-model (C = 2, eq. sss08:TM): C controllers whose bases q_Mi are joined through a
+One kernel covers the single model (C = 1, eq. (3)) and the coupled
+model (C = 2, eq. (5)): C controllers whose bases q_Mi are joined through a
 common tip q_T,
 
     q_T''  + gamma q_T'  = (alpha / C) * sum_i e_i(t),       e_i = q_T - q_Mi
@@ -132,7 +132,7 @@ def advance_errors(
 ) -> int:
     """Advance the balancing errors (Lyapunov mode) with Benettin renormalisation.
 
-        Integrates the error coordinates only (eq. bormann04 / sss08:TMc),
+        Integrates the error coordinates only (eq. (2) / (6)),
 
             e_i'' + gamma e_i' - (alpha / C) sum_j e_j + beta R_i(t) e_i(t - tau) = 0,
 

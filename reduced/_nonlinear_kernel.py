@@ -1,4 +1,4 @@
-"""Compiled loop of the paper's nonlinear stick, eq. (cabrera) (numba, cached, GIL released).
+"""Compiled loop of the paper's nonlinear stick, eq. (1) (numba, cached, GIL released).
 
     theta'' + gamma theta' - alpha sin(theta) + beta R(t) theta(t - tau) = sigma eta(t)
 
@@ -7,7 +7,7 @@ additive noise floor sigma eta(t), held over the step as floor_scale *
 xi[r, n, 1] (floor_scale = sigma / sqrt(dt), Euler–Maruyama).  The delay is a
 ring buffer of the last d = tau/dt angles, read then overwritten at each step,
 exactly as in the linear kernel, so for |theta| << 1 and sigma = 0 the map is
-the linear single model's map for its balancing error (eq. bormann04).
+the linear single model's map for its balancing error (eq. (2)).
 """
 
 from __future__ import annotations

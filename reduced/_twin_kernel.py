@@ -3,14 +3,106 @@
 See :mod:`reduced.twin` for the equations.  Generalised coordinates per
 balancer i: the cart position x_i (m) and the balancing error e_i = L theta_i (m),
 with rates v_i, w_i = e_i'.  All forces are per unit cart mass M (m/s^2).
-One step is MuJoCo's ``Euler`` step: accelerations from the current state, then
-v <- v + h a, q <- q + h v(new).
+One step is one of MuJoCo's integrators (``mjModel.opt.integrator``), as its
+``mj_Euler``, ``mj_implicit`` and ``mj_RungeKutta`` define them:
+
+* ``Euler`` (scheme 0): accelerations a = M^-1 (f + J^T lambda) from the current
+  state, then v <- v + h a, q <- q + h v(new) (semi-implicit);
+* ``implicit`` / ``implicitfast`` (scheme 1): the constraint force lambda as for
+  Euler, then a = (M - h D)^-1 (f + J^T lambda), D = d f / d v the velocity
+  derivative of the smooth forces (here the affine-bias dampers; the Coriolis
+  terms that ``implicit`` adds are of second order in the angles about upright),
+  then the same update;
+* ``RK4`` (scheme 2): the classical four-stage Runge-Kutta method on (q, v) with
+  the control held over the step and the constraint force recomputed at every
+  stage.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _accelerations(
+    st: np.ndarray,
+    u: np.ndarray,
+    coef: np.ndarray,
+    minv: np.ndarray,
+    mstep: np.ndarray,
+    ax: np.ndarray,
+    ae: np.ndarray,
+) -> None:
+    """Accelerations (m/s^2) of one realisation's state ``st`` (C, 4) under controls ``u`` (C,).
+
+    The rod's force is MuJoCo's soft-constraint solution with the explicit mass
+    matrix (``minv``); the accelerations are ``mstep`` (M^-1, or (M - h D)^-1 for
+    the implicit integrators) applied to the smooth forces plus the rod's.
+    """
+    nc = st.shape[0]
+    alpha, g_tip, g_cart, mu = coef[0], coef[1], coef[2], coef[3]
+    rod = coef[7] > 0.5 and nc == 2
+    k_rod, b_rod, a_rod, r_rod = coef[8], coef[9], coef[10], coef[11]
+    qx = np.empty(nc)
+    qe = np.empty(nc)
+    for i in range(nc):
+        e, v, w = st[i, 1], st[i, 2], st[i, 3]
+        tip_drag = g_tip * mu * (v + w)
+        qx[i] = u[i] - g_cart * v - tip_drag
+        qe[i] = mu * alpha * e - tip_drag
+        ax[i] = mstep[0, 0] * qx[i] + mstep[0, 1] * qe[i]
+        ae[i] = mstep[1, 0] * qx[i] + mstep[1, 1] * qe[i]
+    if rod:
+        # soft equality on the tip separation: J = (+1, +1, -1, -1) in (x1, e1, x2, e2)
+        sep = (st[0, 0] + st[0, 1]) - (st[1, 0] + st[1, 1])
+        sep_rate = (st[0, 2] + st[0, 3]) - (st[1, 2] + st[1, 3])
+        a0 = 0.0
+        for i in range(2):
+            sgn = 1.0 if i == 0 else -1.0
+            a0 += sgn * ((minv[0, 0] * qx[i] + minv[0, 1] * qe[i])
+                         + (minv[1, 0] * qx[i] + minv[1, 1] * qe[i]))  # fmt: skip
+        aref = -b_rod * sep_rate - k_rod * sep
+        f = (aref - a0) / (a_rod + r_rod)
+        cx = (mstep[0, 0] + mstep[0, 1]) * f
+        ce = (mstep[1, 0] + mstep[1, 1]) * f
+        ax[0] += cx
+        ae[0] += ce
+        ax[1] -= cx
+        ae[1] -= ce
+
+
+@njit(cache=True, nogil=True)
+def _rk4_step(st: np.ndarray, u: np.ndarray, coef: np.ndarray, minv: np.ndarray, h: float) -> None:
+    """One classical RK4 step of ``st`` (C, 4) in place, control held (``mj_RungeKutta``)."""
+    nc = st.shape[0]
+    y0 = st.copy()
+    y = st.copy()
+    ax = np.empty(nc)
+    ae = np.empty(nc)
+    dq = np.zeros((nc, 2))
+    dv = np.zeros((nc, 2))
+    stage = (0.5, 0.5, 1.0)
+    weight = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+    for j in range(4):
+        _accelerations(y, u, coef, minv, minv, ax, ae)
+        for i in range(nc):
+            dq[i, 0] += weight[j] * y[i, 2]
+            dq[i, 1] += weight[j] * y[i, 3]
+            dv[i, 0] += weight[j] * ax[i]
+            dv[i, 1] += weight[j] * ae[i]
+        if j < 3:
+            c = stage[j] * h
+            for i in range(nc):
+                y[i, 0] = y0[i, 0] + c * y[i, 2]
+                y[i, 1] = y0[i, 1] + c * y[i, 3]
+                y[i, 2] = y0[i, 2] + c * ax[i]
+                y[i, 3] = y0[i, 3] + c * ae[i]
+    for i in range(nc):
+        st[i, 0] = y0[i, 0] + h * dq[i, 0]
+        st[i, 1] = y0[i, 1] + h * dq[i, 1]
+        st[i, 2] = y0[i, 2] + h * dv[i, 0]
+        st[i, 3] = y0[i, 3] + h * dv[i, 1]
 
 
 @njit(cache=True, nogil=True)
@@ -21,6 +113,8 @@ def advance_twin(
     pos: int,
     coef: np.ndarray,
     minv: np.ndarray,
+    mstep: np.ndarray,
+    scheme: int,
     n0: int,
     every: int,
     rec: np.ndarray,
@@ -38,6 +132,9 @@ def advance_twin(
         rod_mobility A (per unit M), rod_regulariser R (per unit M)].
     minv : (2, 2) inverse of the per-unit-cart-mass mass matrix
         [[1 + mu, mu], [mu, mu (1 + kappa)]] in (x, e).
+    mstep : (2, 2) the matrix the step applies to the forces: ``minv`` (Euler,
+        RK4) or (M - h D)^-1 (implicit, implicitfast).
+    scheme : 0 Euler, 1 implicit / implicitfast, 2 RK4 (module docstring).
     rec : (nb, S, C, 4) samples [tip pos, tip vel, base pos, base vel] recorded
         *before* every step whose global index is a multiple of ``every``.
 
@@ -47,14 +144,12 @@ def advance_twin(
     """
     nb, n, nc = xi.shape
     d = hist.shape[2]
-    alpha, g_tip, g_cart, mu = coef[0], coef[1], coef[2], coef[3]
     beta, s_noise, h = coef[4], coef[5], coef[6]
-    rod = coef[7] > 0.5 and nc == 2
-    k_rod, b_rod, a_rod, r_rod = coef[8], coef[9], coef[10], coef[11]
     rec_start = (n0 + every - 1) // every
     nrec = rec.shape[1]
     ax = np.empty(nc)
     ae = np.empty(nc)
+    u = np.empty(nc)
     p_out = pos
     for r in range(nb):
         p = pos
@@ -69,35 +164,20 @@ def advance_twin(
                         rec[r, j, i, 2] = state[r, i, 0]
                         rec[r, j, i, 3] = state[r, i, 2]
             for i in range(nc):
-                e, v, w = state[r, i, 1], state[r, i, 2], state[r, i, 3]
                 e_delayed = hist[r, i, p]
-                hist[r, i, p] = e
-                u = beta * (1.0 + s_noise * xi[r, k, i]) * e_delayed
-                tip_drag = g_tip * mu * (v + w)
-                qx = u - g_cart * v - tip_drag
-                qe = mu * alpha * e - tip_drag
-                ax[i] = minv[0, 0] * qx + minv[0, 1] * qe
-                ae[i] = minv[1, 0] * qx + minv[1, 1] * qe
-            if rod:
-                # soft equality on the tip separation: J = (+1, +1, -1, -1) in (x1, e1, x2, e2)
-                sep = (state[r, 0, 0] + state[r, 0, 1]) - (state[r, 1, 0] + state[r, 1, 1])
-                sep_rate = (state[r, 0, 2] + state[r, 0, 3]) - (state[r, 1, 2] + state[r, 1, 3])
-                a0 = (ax[0] + ae[0]) - (ax[1] + ae[1])
-                aref = -b_rod * sep_rate - k_rod * sep
-                f = (aref - a0) / (a_rod + r_rod)
-                cx = (minv[0, 0] + minv[0, 1]) * f
-                ce = (minv[1, 0] + minv[1, 1]) * f
-                ax[0] += cx
-                ae[0] += ce
-                ax[1] -= cx
-                ae[1] -= ce
-            for i in range(nc):
-                v = state[r, i, 2] + h * ax[i]
-                w = state[r, i, 3] + h * ae[i]
-                state[r, i, 2] = v
-                state[r, i, 3] = w
-                state[r, i, 0] = state[r, i, 0] + h * v
-                state[r, i, 1] = state[r, i, 1] + h * w
+                hist[r, i, p] = state[r, i, 1]
+                u[i] = beta * (1.0 + s_noise * xi[r, k, i]) * e_delayed
+            if scheme == 2:
+                _rk4_step(state[r], u, coef, minv, h)
+            else:
+                _accelerations(state[r], u, coef, minv, mstep, ax, ae)
+                for i in range(nc):
+                    v = state[r, i, 2] + h * ax[i]
+                    w = state[r, i, 3] + h * ae[i]
+                    state[r, i, 2] = v
+                    state[r, i, 3] = w
+                    state[r, i, 0] = state[r, i, 0] + h * v
+                    state[r, i, 1] = state[r, i, 1] + h * w
             p += 1
             if p == d:
                 p = 0

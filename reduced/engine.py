@@ -54,7 +54,7 @@ class ReducedChunks:
 
 
 class ReducedEngine:
-    """The paper's reduced linear model (eqs. bormann04:TM, sss08:TM), float64 on the CPU."""
+    """The paper's reduced linear model (eqs. (3), (5)), float64 on the CPU."""
 
     name = "reduced"
     capabilities = Capabilities(

@@ -1,7 +1,7 @@
 """The reduced models on a GPU: one warp thread per realisation, float64.
 
 The same discrete map as :func:`reduced._kernels.advance_positions` (paper eqs.
-bormann04:TM, sss08:TM; semi-implicit or explicit Euler, a d-slot delay ring
+(3), (5); semi-implicit or explicit Euler, a d-slot delay ring
 per controller, R_{i,n} = 1 + nu xi_{i,n} / sqrt(dt)), written as a warp kernel.
 The draws xi come from :class:`cipcore.noise.GainNoise` on the host (one PCG64
 stream per realisation) and are uploaded once per chunk, so the noise is the

@@ -1,11 +1,11 @@
-"""The paper's nonlinear stick, eq. (cabrera) (Cabrera & Milton 2002), as a third reduced model.
+"""The paper's nonlinear stick, eq. (1) (Cabrera & Milton 2002), as a third reduced model.
 
     theta'' + gamma theta' - alpha sin(theta) + beta R(t) theta(t - tau) = sigma eta(t)
 
 R(t) = 1 + nu xi(t) as in the linear models (paper section 2.1); sigma eta(t)
 is an optional additive white-noise floor (rad/s^2 per sqrt(Hz); 0 in the
 paper).  Its linearisation theta ~ Delta x is the single linear model
-(eq. bormann04), and unlike it the sine saturates: the stick can fall over
+(eq. (2)), and unlike it the sine saturates: the stick can fall over
 (theta -> pi) instead of growing without bound, which on-off intermittency
 needs (bursts that return to the laminar state).
 
@@ -28,7 +28,7 @@ from cipcore.schema import DEFAULT_MAX_BYTES, Trajectory, check_amplitude, plan_
 
 from ._nonlinear_kernel import advance_angle
 
-#: Fields of the nonlinear stick: eq. (cabrera) has one coordinate, theta; the paper
+#: Fields of the nonlinear stick: eq. (1) has one coordinate, theta; the paper
 #: identifies it with the balancing error (theta ~ Delta x).
 NONLINEAR_FIELDS: tuple[str, ...] = ("balancing_error", "balancing_error_velocity", "angle")
 
@@ -77,7 +77,7 @@ def simulate_nonlinear(
     max_bytes: int = DEFAULT_MAX_BYTES,
     first_realization: int = 0,
 ) -> Trajectory:
-    """Simulate eq. (cabrera) and record theta (module docstring).
+    """Simulate eq. (1) and record theta (module docstring).
 
     Parameters
     ----------

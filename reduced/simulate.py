@@ -1,4 +1,4 @@
-"""Time series of the reduced balancing models (paper eqs. bormann04:TM, sss08:TM).
+"""Time series of the reduced balancing models (paper eqs. (3), (5)).
 
     single:   x_T'' + gamma x_T' = alpha e(t),         x_M'' + gamma x_M' = beta R(t) e(t - tau)
     coupled:  2 q_T'' + 2 gamma q_T' = alpha (e_1 + e_2),

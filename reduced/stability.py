@@ -1,7 +1,7 @@
 """Noise-free (nu = 0) stability of the reduced models.
 
 With R = 1 the balancing errors obey linear delay equations (paper eqs.
-bormann04 and sss08:TMc),  y'(t) = A0 y(t) + A1 y(t - tau), whose
+(2) and (6)),  y'(t) = A0 y(t) + A1 y(t - tau), whose
 characteristic equation is det(s I - A0 - A1 exp(-s tau)) = 0:
 
 * single, y = (e, e'):  s^2 + gamma s - alpha + beta exp(-s tau) = 0

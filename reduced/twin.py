@@ -1,6 +1,6 @@
 """The exact linear twin of the rigid-body CIP: an instrument, not the paper's model.
 
-The paper's reduced model (eqs. bormann04:TM, sss08:TM) is the scientific
+The paper's reduced model (eqs. (3), (5)) is the scientific
 reference.  The rigid body differs from it by small, known terms; the twin is the
 reduced model extended by exactly those terms, linearised about upright and
 stepped the way MuJoCo's ``Euler`` integrator steps, so that at small amplitude
@@ -16,7 +16,7 @@ equations of a cart with a pendulum whose mass m sits at the tip are::
     mu x_i''       + mu (1 + kappa) e_i'' = mu alpha e_i      - gamma_t mu v_Ti + s_i f
 
 with alpha = g/L, v_Ti = x_i' + e_i' the tip velocity, u_i = beta R_i(t)
-e_i(t - tau) the control (paper eq. sss08:TM), gamma_t the tip damping (a force
+e_i(t - tau) the control (paper eq. (5)), gamma_t the tip damping (a force
 -gamma_t m v_T at the tip) and gamma_c the cart damping.  Eliminating x_i'' gives
 the reduced model's tip equation x_Ti'' + gamma_t x_Ti' = alpha e_i - kappa e_i''
 and the cart equation x_i'' + gamma_c x_i' = u_i - mu alpha e_i + mu kappa e_i'':
@@ -35,9 +35,17 @@ k = 1 / (dmax^2 tc^2 zeta^2), d = dmin the impedance at zero violation,
 R = (1 - d)/d * A_0 the regulariser (A_0 = MuJoCo's ``tendon_invweight0``) and
 tc = max(solref timeconst, 2 dt) (MuJoCo's ``refsafe`` clamp).
 
-Step: a = M^-1 (forces) at the current state, v <- v + dt a, q <- q + dt v
-(MuJoCo's semi-implicit ``Euler``; the damping is explicit because the MJCF
-applies it with affine-bias actuators, not joint damping).  What the twin does
+Step: the engine's integrator (``TwinParams.integrator``, MuJoCo's names), as
+MuJoCo defines it: ``Euler``: a = M^-1 (forces) at the current state, v <- v +
+dt a, q <- q + dt v (semi-implicit; the damping is explicit because the MJCF
+applies it with affine-bias actuators, not joint damping); ``implicit`` and
+``implicitfast``: the same with a = (M - dt D)^-1 (forces), D the dampers'
+velocity derivative (the rod's force still from the explicit M); ``RK4``: the
+classical Runge-Kutta method, control held over the step (see
+:mod:`reduced._twin_kernel`).  A rigid rod (Drake's distance constraint in
+SAP's near-rigid regime) is the same one-row solution with k = 1/dt^2, b = 1/dt
+and R = A beta_nr^2 / (4 pi^2) (Castro et al. 2022): the engine declares its
+rod's constants (``rod_stiffness``, ``rod_damping``, ``rod_regulariser``).  What the twin does
 not capture are terms of second order in the angles (sin theta - theta, the
 pendulum's cos theta in the mass matrix and the moment arms, the rod's tilt when
 the tips are at unequal heights): relative size theta^2, below 1e-10 at the
@@ -66,6 +74,9 @@ from cipcore.schema import (
 from ._twin_kernel import advance_twin
 from .simulate import _store
 
+#: MuJoCo's integrator names -> the kernel's scheme (:func:`reduced._twin_kernel.advance_twin`).
+TWIN_SCHEMES = {"Euler": 0, "implicit": 1, "implicitfast": 1, "RK4": 2}
+
 
 @dataclass(frozen=True)
 class TwinParams:
@@ -78,6 +89,8 @@ class TwinParams:
     rod : whether a rod joins the tips (coupled model).
     rod_stiffness : k d (1/s^2), rod_damping : b (1/s), rod_regulariser :
         R per unit M (MuJoCo's (1 - d)/d * tendon_invweight0 * M).
+    integrator : the engine's stepper in MuJoCo's names: "Euler", "implicit",
+        "implicitfast" or "RK4".
     """
 
     alpha: float
@@ -90,8 +103,13 @@ class TwinParams:
     rod_stiffness: float = 0.0
     rod_damping: float = 0.0
     rod_regulariser: float = 0.0
+    integrator: str = "Euler"
 
     def __post_init__(self) -> None:
+        if self.integrator not in TWIN_SCHEMES:
+            raise ParameterError(
+                f"integrator must be one of {', '.join(TWIN_SCHEMES)}, got {self.integrator!r}"
+            )
         check_positive("mass_ratio", self.mass_ratio)
         check_positive("dt", self.dt)
         check_positive("kappa", self.kappa, allow_zero=True)
@@ -100,6 +118,16 @@ class TwinParams:
         """Inverse of the per-unit-M mass matrix [[1 + mu, mu], [mu, mu (1 + kappa)]] in (x, e)."""
         mu, kappa = self.mass_ratio, self.kappa
         return np.linalg.inv(np.array([[1.0 + mu, mu], [mu, mu * (1.0 + kappa)]]))
+
+    def step_matrix(self) -> np.ndarray:
+        """The matrix one step applies to the forces: M^-1, or (M - dt D)^-1 for the
+        implicit integrators (D the dampers' velocity derivative, per unit M)."""
+        if TWIN_SCHEMES[self.integrator] != 1:
+            return self.inverse_mass()
+        mu, kappa, h = self.mass_ratio, self.kappa, self.dt
+        gt, gc = self.gamma_tip * mu, self.gamma_cart
+        m = np.array([[1.0 + mu, mu], [mu, mu * (1.0 + kappa)]])
+        return np.linalg.inv(m + h * np.array([[gc + gt, gt], [gt, gt]]))
 
     def rod_mobility(self) -> float:
         """A = J M^-1 J^T per unit M (dimensionless): the rod's inverse effective mass."""
@@ -152,20 +180,24 @@ def simulate_twin(
         twin.rod_damping, twin.rod_mobility(), twin.rod_regulariser,
     ])  # fmt: skip
     minv = twin.inverse_mass()
+    mstep = twin.step_matrix()
+    scheme = TWIN_SCHEMES[twin.integrator]
 
     def work(block: slice, xi: np.ndarray, n0: int) -> None:
         n = xi.shape[1]
         j0 = -(-n0 // decimate)
         j1 = -(-(n0 + n) // decimate)
         rec = np.empty((xi.shape[0], j1 - j0, nc, 4))
-        advance_twin(xi, state[block], hist[block], n0 % d, coef, minv, n0, decimate, rec)
+        advance_twin(
+            xi, state[block], hist[block], n0 % d, coef, minv, mstep, scheme, n0, decimate, rec
+        )
         _store(out, rec, block, j0, j1)
 
     run_blocks(noise, n_steps, work, threads=threads)
     attrs = {
         "engine": "twin",
         "model": model,
-        "stepper": "semi-implicit",
+        "stepper": twin.integrator,
         "seed": noise.seed,
         "first_realization": noise.first_realization,
         "amplitude": amplitude,

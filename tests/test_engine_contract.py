@@ -52,6 +52,15 @@ def test_delay_is_tau_over_dt_steps(name: str) -> None:
     _check(contract.delay_is_tau_over_dt_steps, name)
 
 
+@pytest.mark.parametrize("integrator", ["RK4", "implicitfast"])
+def test_delay_is_tau_over_dt_steps_for_any_integrator(integrator: str) -> None:
+    """MuJoCo stepping RK4 or implicitfast applies the same delay (the estimator assumes
+    no stepper)."""
+    d, resid = contract.lag_residuals(_engine("mujoco"), integrator)
+    assert min(resid, key=resid.get) == d, resid
+    assert resid[d] < 1e-3 and min(resid[d - 1], resid[d + 1]) > 10 * resid[d]
+
+
 @pytest.mark.parametrize("name", RIGID)
 def test_rod_holds_the_tips_together(name: str) -> None:
     _check(contract.rod_holds_the_tips_together, name)
@@ -88,9 +97,15 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
     assert set(rows) == {"reduced", "mujoco"}
     assert rc == (1 if res["status"] == "fail" else 0)
     m = rows["mujoco"]
-    assert m["checks"]["trajectory"] == "pass" and m["checks"]["rod"] == "pass"
+    # the same direct checks as `run --engine mujoco`: its twin, rod, delay, declared model
+    names = {c["name"] for c in m["checks"]}
+    assert {"twin.trajectory.coupled", "twin.rod.coupled", "delay.single"} <= names
+    assert not [f for f in m["failed"] if f.startswith(("twin.", "delay.", "model."))]
+    assert m["twin_distance"]["coupled"] < m["twin_tolerance"]["coupled"]
+    assert m["delay_steps"] == {"single": 100, "coupled": 100}
     assert m["throughput"]["ratio_to_mujoco"] == 1.0
     assert 0 < m["trajectory_distance"]["coupled"] < 1e-2
+    assert rows["reduced"]["trajectory_distance"]["coupled"] == 0.0
     assert (tmp_path / "report.md").read_text().count("| mujoco |") == 1
     assert_tables_well_formed((tmp_path / "report.md").read_text())
 

@@ -10,14 +10,17 @@ import pytest
 
 from cip.mjcf_params import load_model_file, read_mapping, shipped_model_path
 from cip.model import CIPParams, build, mjcf
+from cip.runner import MujocoRollout
 from cip.simulate import simulate_full
 from cipcore.params import BalanceParams, ParameterError
+from cipcore.registry import get_engine
 from reduced.twin import TwinParams, simulate_twin
-from validation.agreement import TWIN_TOLERANCE, instrument_checks, measured_delay
+from validation.agreement import instrument_checks, measured_delay
 from validation.faults import CATALOGUE, make_fault
 from validation.selftest import run_selftest
 
 BETA = {"single": 20.306, "coupled": 21.032}
+TWIN_TOLERANCE = get_engine("mujoco").twin_tolerance_for("coupled")
 
 
 def _pair(model, amplitude, twin_params=None, duration=2.0):
@@ -92,7 +95,7 @@ def test_delay_measured_from_the_response_is_tau_over_the_model_timestep():
     p = BalanceParams(beta=BETA["single"], tau=0.02)
     assert measured_delay("single", p, mp.physical(), m) == round(0.02 / m.opt.timestep)
     late = make_fault("delay_late", 1)
-    assert measured_delay("single", p, mp.physical(), m, late.backend()) == 21
+    assert measured_delay("single", p, mp.physical(), m, late.backend(MujocoRollout)) == 21
 
 
 def test_unmodified_model_passes_every_direct_check():
@@ -103,7 +106,7 @@ def test_unmodified_model_passes_every_direct_check():
 def test_fault_backend_leaves_the_declared_model_alone():
     m = load_model_file(shipped_model_path("coupled"))
     before = copy.deepcopy(m.opt.gravity)
-    backend = make_fault("gravity", 0.005).backend()
+    backend = make_fault("gravity", 0.005).backend(MujocoRollout)
     b = backend(m, 1, 1)
     assert b.faulty_model.opt.gravity[2] == pytest.approx(before[2] * 1.005)
     np.testing.assert_array_equal(m.opt.gravity, before)

@@ -171,8 +171,8 @@ def test_cuda_graph_chunk_equals_plain_launches() -> None:
 def test_packed_gpu_sweep_gives_the_cpu_sweep_results() -> None:
     """Two rod lengths x 2 realisations in one batch: same keys as evaluate_point and,
     point by point, the CPU MuJoCo sweep's numbers within float32 precision."""
-    from validation.gpu_sweep import evaluate_points
     from validation.sweep import Study, evaluate_point
+    from validation.sweeps.gpu import evaluate_points
 
     study = Study(name="t", model="coupled", realizations=2, duration=0.5, decimate=5,
                   metrics=("rms", "max_angle", "agreement"),

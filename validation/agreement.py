@@ -1,8 +1,10 @@
-"""Full (MuJoCo) vs reduced model under the same noise draws: metrics and verdicts.
+"""Full (a rigid-body engine) vs reduced model under the same noise draws: metrics and verdicts.
 
-Each function runs both engines with one seed, computes a metric per
-realisation and returns :class:`validation.stats.Check` objects whose
-tolerances follow the rules in :mod:`validation.stats`.
+Each function runs the engine under validation (any rigid-body engine of
+:mod:`cipcore.registry`, ``engine=``, MuJoCo by default) and the reduced model
+with one seed, computes a metric per realisation and returns
+:class:`validation.stats.Check` objects whose tolerances follow the rules in
+:mod:`validation.stats`.
 """
 
 from __future__ import annotations
@@ -12,11 +14,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cip.lyapunov import lyapunov_full
 from cip.model import small_angle_limit
-from cip.simulate import DivergenceWarning, simulate_full
+from cip.simulate import DivergenceWarning
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import ParameterError
+from cipcore.registry import get_engine
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 
@@ -37,14 +39,18 @@ SERIES_FIELDS = ("balancing_error", "balancing_error_velocity", "tip_velocity", 
 
 
 def lyapunov_checks(
-    profile: Profile, threads: int | None, files: dict[str, str] | None = None
+    profile: Profile,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> tuple[list[Check], dict]:
     """lambda1 of both engines at each gain of the profile (CI-overlap rule)."""
     from cip.mjcf_params import read_mapping
 
     checks, rows = [], []
     for model, gains in profile.lyapunov_gains.items():
-        m = model_file(model, files)
+        m = model_file(model, files, integrator)
         phys = read_mapping(m).physical()
         for beta in gains:
             p = BalanceParams(beta=beta)
@@ -56,7 +62,7 @@ def lyapunov_checks(
                 "threads": threads,
             }
             red = lyapunov(model, p, **kw)
-            full = lyapunov_full(model, p, physical=phys, mj_model=m, **kw)
+            full = rigid_engine(engine).lyapunov(model, p, physical=phys, mj_model=m, **kw)
             status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
             rows.append(
                 {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
@@ -145,18 +151,21 @@ def run_pair(
     decimate: int,
     threads: int | None,
     files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> tuple[Trajectory, Trajectory]:
     """Both engines, same parameters and seed: (full, reduced).
 
     The full model is the model file (``files[model]``, a user's ``--mjcf``, or
-    the shipped ``models/cip_<model>.xml``), its physical parameters read from it.
+    the shipped ``models/cip_<model>.xml``, stepped with ``integrator`` where
+    given), its physical parameters read from it, run by ``engine``.
     """
     from cip.mjcf_params import read_mapping
 
     p = BalanceParams(beta=beta)
     kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
-    m = model_file(model, files)
-    full = simulate_full(
+    m = model_file(model, files, integrator)
+    full = rigid_engine(engine).simulate(
         model, p, duration, n, seed, fields=(*SERIES_FIELDS, "angle"),
         physical=read_mapping(m).physical(), mj_model=m, **kw,
     )  # fmt: skip
@@ -186,12 +195,15 @@ def run_twin(
     decimate: int,
     threads: int | None,
     files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> Trajectory:
-    """The exact twin of the model file under the same noise as :func:`run_pair`."""
+    """The engine's exact twin of the model file under the same noise as :func:`run_pair`."""
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin
 
-    tw = TwinParams(**read_mapping(model_file(model, files)).twin_terms())
+    mapping = read_mapping(model_file(model, files, integrator))
+    tw = TwinParams(**rigid_engine(engine).twin_terms(mapping))
     return simulate_twin(
         model, BalanceParams(beta=beta), tw, duration, n, seed, amplitude=amplitude,
         decimate=decimate, fields=SERIES_FIELDS, threads=threads,
@@ -325,7 +337,11 @@ def compare_series(
 
 
 def series_checks(
-    profile: Profile, threads: int | None, files: dict[str, str] | None = None
+    profile: Profile,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> tuple[list[Check], dict]:
     """Time-series agreement at the paper's gains, small amplitude, and the direct checks.
 
@@ -338,7 +354,8 @@ def series_checks(
         seed = profile.seed_for("series", model)
         args = (
             model, beta, profile.amplitude, profile.series_duration,
-            profile.series_realizations, seed, profile.decimate, threads, files,
+            profile.series_realizations, seed, profile.decimate, threads, files, engine,
+            integrator,
         )  # fmt: skip
         full, red = run_pair(*args)
         twin = run_twin(*args)
@@ -358,15 +375,16 @@ def series_checks(
                 name=f"agreement.trajectory.{model}",
                 status=PASS if rel < 0.01 and max_angle < small_angle_limit() else FAIL,
                 values={"relative_l2": rel, "max_abs_angle": max_angle},
-                tolerance="relative L2 distance of the balancing errors < 1% (issue 3), "
+                tolerance="relative L2 distance of the balancing errors < 1% over the first 10 s, "
                 "in the small-angle regime",
                 details=details,
             )
         )
         data[model] = {"full": full, "reduced": red, "metrics_full": mf, "metrics_reduced": mr}
     checks += instrument_checks(
-        profile.seed_for("twin"), profile.series_realizations, threads, files=files
-    )
+        profile.seed_for("twin"), profile.series_realizations, threads, files=files,
+        engine=engine, integrator=integrator,
+    )  # fmt: skip
     return checks, data
 
 
@@ -377,7 +395,11 @@ SMALL_ANGLE_FLOOR = float(np.log10(1.001))
 
 
 def amplitude_scan(
-    profile: Profile, threads: int | None, files: dict[str, str] | None = None
+    profile: Profile,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> tuple[list[Check], list[dict]]:
     """Agreement of RMS, spectrum bands and trajectory vs initial amplitude.
 
@@ -393,7 +415,7 @@ def amplitude_scan(
         for amp in profile.scan_amplitudes:
             args = (
                 model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
-                profile.decimate, threads, files,
+                profile.decimate, threads, files, engine, integrator,
             )  # fmt: skip
             full, red = run_pair(*args)
             twin = run_twin(*args)
@@ -479,9 +501,13 @@ def amplitude_scan(
 
 
 def rod_length_study(
-    profile: Profile, out_dir, workers: int | None
+    profile: Profile,
+    out_dir,
+    workers: int | None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> tuple[list[Check], list[dict], object]:
-    """The shipped rod-length study (issue 5) at the profile's size.
+    """The shipped rod-length study at the profile's size.
 
     Check: in the linear regime (smallest amplitude) the rod length must not
     matter (it drops out of the reduced model): with common random numbers,
@@ -500,6 +526,9 @@ def rod_length_study(
 
     base = Study.from_toml(default_studies_dir() / "rod_length.toml").as_dict()
     base.update(profile.rod_study)
+    base["engine"] = engine
+    if integrator is not None:
+        base["fixed"] = {**base.get("fixed", {}), "integrator": integrator}
     study = Study(**base)
     where = Path(out_dir) / "rod_length"
     meta = where / "study.json"
@@ -555,31 +584,43 @@ def rod_length_study(
 #: enough that the rod's absolute round-off (~1e-17 m) stays below it too.
 TWIN_AMPLITUDE = 1e-6
 TWIN_WINDOW = 10.0  # s
-#: Largest relative L2 distance of the balancing errors, full vs twin.  Measured
-#: floor at 1e-6 m over 10 s (MuJoCo 4.0.0, x86-64, seed 1, 4 realisations):
-#: 2.3e-11 (single), 1.9e-11 (coupled), set by the angles' second-order terms
-#: (it scales as the amplitude squared: 2.3e-9 at 1e-5 m) and, for the coupled
-#: model, the rod's absolute round-off (1.5e-9 at 1e-8 m).  The tolerance is that
-#: floor times 40: a round-off difference between platforms stays far inside it.
-TWIN_TOLERANCE = 1e-9
-#: Largest relative L2 distance of the rod's stretch (tip 1 minus tip 2), full vs
-#: twin; measured floor 6.0e-5 at 1e-6 m (seed 1, 4 realisations): the stretch,
-#: ~5e-13 m, is computed by MuJoCo from a tendon length of ~1 m whose round-off
-#: (~1e-16 m) sets that floor; tolerance about 17 times the floor.
-ROD_TOLERANCE = 1e-3
+# The twin and rod tolerances are the engine's own (cip.engines.RigidBodyEngine:
+# twin_tolerance, rod_tolerance), set from its measured floor.
 
 
-def model_file(model: str, files: dict[str, str] | None = None):
-    """The compiled model file of ``model`` (a user's ``--mjcf`` or the shipped one)."""
-    from cip.mjcf_params import load_model_file, shipped_model_path
+def rigid_engine(name: str):
+    """The registered rigid-body engine ``name`` (one line naming the reason if it is not one)."""
+    engine = get_engine(name)
+    if not engine.capabilities.rigid_body or not hasattr(engine, "twin_terms"):
+        raise ParameterError(
+            f"engine {name!r} is not a rigid-body engine: `run` validates a rigid-body engine "
+            "against the reduced model (`cip-validate engines` compares the others)"
+        )
+    return engine
 
-    return load_model_file((files or {}).get(model) or shipped_model_path(model))
+
+def model_file(model: str, files: dict[str, str] | None = None, integrator: str | None = None):
+    """The compiled model file of ``model`` (a user's ``--mjcf`` or the shipped one).
+
+    ``integrator`` (MuJoCo's names: Euler, implicit, implicitfast, RK4) replaces the
+    file's ``<option integrator>`` where given.
+    """
+    import mujoco
+
+    from cip.mjcf_params import INTEGRATOR_NAMES, load_model_file, shipped_model_path
+
+    m = load_model_file((files or {}).get(model) or shipped_model_path(model))
+    if integrator is not None:
+        enum = {v: k for k, v in INTEGRATOR_NAMES.items()}
+        if integrator not in enum:
+            raise ParameterError(f"integrator must be one of {', '.join(enum)}, got {integrator!r}")
+        m.opt.integrator = int(getattr(mujoco.mjtIntegrator, enum[integrator]))
+    return m
 
 
 def _relative_l2(a: np.ndarray, b: np.ndarray) -> float:
     k = min(a.shape[1], b.shape[1])
-    den = np.linalg.norm(b[:, :k])
-    return float(np.linalg.norm(a[:, :k] - b[:, :k]) / den) if den > 0 else float("inf")
+    return metrics.relative_l2(a[:, :k], b[:, :k])
 
 
 def measured_delay(model: str, params: BalanceParams, physical, mj_model, backend=None) -> int:
@@ -588,8 +629,12 @@ def measured_delay(model: str, params: BalanceParams, physical, mj_model, backen
     The balancing error's history is zero before t = 0 and ``TWIN_AMPLITUDE`` at
     t = 0: a step.  The run with the controller and one without it (beta = 0)
     start from the same state; the first step after which the carts' velocities
-    differ is the first step whose control force is non-zero, the delay.
-    Returns -1 if no force appears within three delays.
+    differ is the first step whose control force is non-zero, the delay.  Any
+    one-step integrator that holds the control over a step (semi-implicit Euler,
+    implicit, RK4, SAP) first moves the velocity after the step whose control
+    changed, so the count assumes no stepper.  ``backend`` is the engine's
+    :class:`cip.runner.RolloutBackend` class.  Returns -1 if no force appears
+    within three delays.
     """
     from cip.runner import CIPRunner
 
@@ -615,18 +660,24 @@ def instrument_checks(
     files: dict[str, str] | None = None,
     fault=None,
     models: tuple[str, ...] = MODEL_NAMES,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> list[Check]:
-    """Full model vs its exact twin, the delay, the rod, the declared model (issue 9).
+    """Full model vs the engine's exact twin, the delay, the rod, the declared model.
 
     ``files`` maps a model to a user's MJCF (default: the shipped files);
-    ``fault`` a :class:`validation.faults.Fault` injected into the engine only.
+    ``fault`` a :class:`validation.faults.Fault` injected into the engine only;
+    ``engine`` the rigid-body engine (its twin, tolerances and rollout backend);
+    ``integrator`` the MuJoCo integrator run instead of the file's.
     """
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin
 
+    eng = rigid_engine(engine)
+    caps = eng.capabilities
     checks = []
     for model in models:
-        m = model_file(model, files)
+        m = model_file(model, files, integrator)
         mp = read_mapping(m)
         if mp.model != model:
             raise ParameterError(f"--mjcf: the file for {model!r} describes a {mp.model} model")
@@ -638,33 +689,37 @@ def instrument_checks(
             "gamma_cart": (mp.cart_damping, p.gamma),
         }
         ok = all(abs(a - b) <= 1e-12 * abs(b) for a, b in declared.values())
-        ok = ok and mp.integrator == "Euler"
+        # an engine that follows the file's integrator must support it; one with its
+        # own stepper (no integrators listed) runs what its capabilities declare
+        ok = ok and (not eng.integrators or mp.integrator in eng.integrators)
+        runs = mp.integrator if eng.integrators else caps.integrator
         checks.append(
             Check(
                 name=f"model.declared.{model}",
                 status=PASS if ok else FAIL,
                 values={k: {"model": a, "controller": b} for k, (a, b) in declared.items()}
-                | {"integrator": mp.integrator},
+                | {"integrator": runs, "engine": engine, "twin": caps.twin},
                 tolerance="time step, g/L and dampings of the model file equal the "
-                "controller's dt, alpha, gamma to 1e-12 relative; integrator Euler (the "
-                "reduced model's stepper)",
+                "controller's dt, alpha, gamma to 1e-12 relative; the file's integrator is one "
+                "the engine steps and its twin follows "
+                f"({', '.join(eng.integrators) or 'the engine has its own: ' + caps.integrator})",
                 details=f"mapping read from the model file ({mp.model}, m/M = {mp.mass_ratio:g})",
             )
         )
         if not ok:
             continue  # the engine would run another model than the controller assumes
         phys = mp.physical()
-        twin_p = TwinParams(**mp.twin_terms())
-        pe, backend = p, None
+        twin_p = TwinParams(**eng.twin_terms(mp))
+        pe, backend = p, eng.rollout()
         noise = None
         n_steps = round(TWIN_WINDOW / p.dt)
         if fault is not None:
-            pe, backend = fault.engine_params(p), fault.backend()
+            pe, backend = fault.engine_params(p), fault.backend(backend)
             noise = fault.noise(seed, n_realizations, get_model(model).n_controllers, n_steps)
         kw = {"amplitude": TWIN_AMPLITUDE, "threads": threads}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DivergenceWarning)
-            full = simulate_full(
+            full = eng.simulate(
                 model,
                 pe,
                 TWIN_WINDOW,
@@ -691,16 +746,18 @@ def instrument_checks(
         complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
         rel = _relative_l2(ef, et)
         details = (
-            f"amplitude {TWIN_AMPLITUDE:g} m, {n_realizations} x {TWIN_WINDOW:g} s, "
-            f"seed {seed}, same noise"
+            f"engine {engine} ({twin_p.integrator}), amplitude {TWIN_AMPLITUDE:g} m, "
+            f"{n_realizations} x {TWIN_WINDOW:g} s, seed {seed}, same noise"
         )
         checks.append(
             Check(
                 name=f"twin.trajectory.{model}",
-                status=PASS if complete and rel <= TWIN_TOLERANCE else FAIL,
+                status=PASS if complete and rel <= eng.twin_tolerance_for(model) else FAIL,
                 values={"relative_l2": rel, "complete": complete},
-                tolerance=f"relative L2 distance of the balancing errors to the exact linear twin "
-                f"<= {TWIN_TOLERANCE:g} (measured floor 2e-11; agreement.TWIN_TOLERANCE)",
+                tolerance=f"relative L2 distance of the balancing errors to the engine's exact "
+                f"linear twin <= {eng.twin_tolerance_for(model):g} (the engine's twin_tolerance, "
+                "from its "
+                "measured floor)",
                 details=details,
             )
         )
@@ -714,15 +771,15 @@ def instrument_checks(
             checks.append(
                 Check(
                     name=f"twin.rod.{model}",
-                    status=PASS if complete and rel_rod <= ROD_TOLERANCE else FAIL,
+                    status=PASS if complete and rel_rod <= eng.rod_tolerance else FAIL,
                     values={
                         "stretch_relative_l2": rel_rod,
                         "stretch_rms_m": float(nf / np.sqrt(sf[:, :k].size)),
                         "implied_stiffness": implied,
                         "twin_stiffness": twin_p.rod_stiffness,
                     },
-                    tolerance="the rod's stretch (tip 1 - tip 2) matches the twin's soft "
-                    f"constraint to relative L2 <= {ROD_TOLERANCE:g}; implied stiffness "
+                    tolerance=f"the rod's stretch (tip 1 - tip 2) matches the twin's {caps.rod} "
+                    f"constraint to relative L2 <= {eng.rod_tolerance:g}; implied stiffness "
                     "k_twin |d_twin| / |d_full|",
                     details=details,
                 )

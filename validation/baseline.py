@@ -44,12 +44,12 @@ from .stats import FAIL, PASS, Check
 Z_REGRESSION = 4.0
 EXACT_RTOL = 1e-12
 #: Largest move of a distance or residual between platforms (absolute): ten
-#: times the twin's tolerance (validation.agreement.TWIN_TOLERANCE), i.e. far
+#: times MuJoCo's twin tolerance (cip.engines.RigidBodyEngine.twin_tolerance), i.e. far
 #: above the round-off differences of a correct engine, far below a fault.
 DISTANCE_TOLERANCE = 1e-8
 #: The rod's stretch vs the twin is itself a round-off floor (6e-5 to 8e-5; it
 #: moved by 2.5e-7 between MuJoCo 4.0.0 and 3.5.0): it may move up to the rod
-#: check's own tolerance (validation.agreement.ROD_TOLERANCE).
+#: check's own tolerance for MuJoCo (cip.engines.RigidBodyEngine.rod_tolerance).
 DISTANCE_KEYS = {"relative_l2": DISTANCE_TOLERANCE, "stretch_relative_l2": 1e-3}
 STEP_KEYS = ("measured_steps", "expected_steps")
 #: Round-off tier (same package versions, another CPU or numpy/BLAS build): every

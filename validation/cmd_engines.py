@@ -1,4 +1,4 @@
-"""``cip-validate engines``: the cross-engine table (:mod:`validation.engines`)."""
+"""``cip-validate engines``: every engine through the same checks, one table."""
 
 from __future__ import annotations
 
@@ -11,12 +11,16 @@ from cipcore.registry import engine_names
 
 from .ci_options import add_ci_options, run_environment
 from .cli_args import add_threads_arg, check_out_dir, check_out_file, nonnegative_int
-from .engines import ENGINE_PROFILES, compare_engines, parse_engines, write_engine_reports
+from .engine_options import INTEGRATORS
+from .engines import compare_engines, parse_engines, write_engine_reports
+from .profiles import PROFILES
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
 
 def cmd_engines(a: argparse.Namespace) -> int:
+    from cipcore.params import ParameterError
+
     from .commands.contract import register_engine_cmd
 
     cmd_engine = register_engine_cmd(a.engine_cmd)
@@ -26,9 +30,11 @@ def cmd_engines(a: argparse.Namespace) -> int:
     else:
         names = parse_engines(a.engines)
     if a.threads is not None and a.threads < 1:
-        from cipcore.params import ParameterError
-
         raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
+    if a.integrator is not None and a.integrator not in INTEGRATORS:
+        raise ParameterError(
+            f"--integrator must be one of {', '.join(INTEGRATORS)}, got {a.integrator!r}"
+        )
     out = check_out_dir("--out", a.out)  # checked before any work
     junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
     quiet = a.json or a.quiet
@@ -36,9 +42,25 @@ def cmd_engines(a: argparse.Namespace) -> int:
     try:
         if a.json:  # an engine's import banner (warp's) must not corrupt the JSON on stdout
             with stdout_to_stderr():
-                results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+                results = compare_engines(
+                    names,
+                    a.profile,
+                    a.seed,
+                    a.threads,
+                    progress=say,
+                    integrator=a.integrator,
+                    selftest=a.selftest,
+                )
         else:
-            results = compare_engines(names, a.profile, a.seed, a.threads, progress=say)
+            results = compare_engines(
+                names,
+                a.profile,
+                a.seed,
+                a.threads,
+                progress=say,
+                integrator=a.integrator,
+                selftest=a.selftest,
+            )
     except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
         from .exitcodes import EXIT_CRASH
 
@@ -68,13 +90,17 @@ def cmd_engines(a: argparse.Namespace) -> int:
                 continue
             tp = r["throughput"]
             ratio = tp.get("ratio_to_mujoco")
+            tw = r.get("twin_distance")
+            dist = (f"twin distance single {tw['single']:.3g} coupled {tw['coupled']:.3g}"
+                    if tw else "reference distance coupled "
+                    f"{r['trajectory_distance']['coupled']:.3g}")  # fmt: skip
             print(
-                f"{r['engine']:12s} {r['status']:12s} distance single "
-                f"{r['trajectory_distance']['single']:.3g} coupled "
-                f"{r['trajectory_distance']['coupled']:.3g}  "
+                f"{r['engine']:12s} {r['status']:12s} {dist}  "
                 f"{tp['realization_steps_per_s']:.3g} steps/s"
                 + (f" ({ratio:.3g} x MuJoCo CPU)" if ratio is not None else "")
             )
+            if r["failed"]:
+                print(f"{'':12s} failed: {', '.join(r['failed'])}")
         print(f"report: {out / 'report.md'}")
     return EXIT_OK if results["status"] != "fail" else EXIT_FAIL
 
@@ -82,20 +108,26 @@ def cmd_engines(a: argparse.Namespace) -> int:
 def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "engines",
-        help="validate every registered engine against the reduced model, one table",
-        description="Run every registered engine (or --engines) on the same seeds as the "
-        "reduced reference: trajectory distance (relative L2), lambda1 and throughput "
-        "(realisation-steps/s) per engine, in DIR/report.md and report.html; an engine not "
-        "installed here is skipped with the reason.",
+        help="validate every registered engine through the run's checks, one table",
+        description="Run every registered engine (or --engines) through the checks of "
+        "`cip-validate run` (its exact twin, the delay, the rod, the declared model, the "
+        "agreement with the reduced reference on the same seeds) and list them in one table "
+        "with throughput (realisation-steps/s) in DIR/report.md and report.html; an engine "
+        "not installed here is skipped with the reason.",
     )
     registered = ", ".join(engine_names())
     p.add_argument("--engines", metavar="A,B,...",
                    help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
-    p.add_argument("--profile", choices=tuple(ENGINE_PROFILES), default="quick",
-                   help="sizes of the checks: smoke (seconds), quick (minutes), paper "
-                   "(the paper's run lengths)")  # fmt: skip
-    p.add_argument("--seed", type=nonnegative_int, default=0,
-                   help="root seed of every noise draw (integer >= 0)")  # fmt: skip
+    p.add_argument("--profile", choices=tuple(PROFILES), default="quick",
+                   help="sizes of the checks (the profiles of `cip-validate run`)")  # fmt: skip
+    p.add_argument("--seed", type=nonnegative_int, default=None,
+                   help="root seed of every noise draw (integer >= 0; default: the "
+                   "profile's)")  # fmt: skip
+    p.add_argument("--integrator", default=None, metavar="NAME",
+                   help=f"MuJoCo integrator for engines that follow the model file "
+                   f"({', '.join(INTEGRATORS)}; default: the file's)")  # fmt: skip
+    p.add_argument("--selftest", action="store_true",
+                   help="also inject the fault catalogue into each rigid-body engine")  # fmt: skip
     add_threads_arg(p)
     p.add_argument("--out", default="cip-engines-out", metavar="DIR",
                    help="output directory (created if absent; must be writable)")  # fmt: skip

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -72,32 +73,50 @@ def same_noise_gives_the_reduced_trajectory(engine: Any, model: str) -> str:
     return f"relative L2 distance {dist:.3e} <= declared {tol:.1e}"
 
 
-def delay_is_tau_over_dt_steps(engine: Any) -> str:
-    """The cart force at step n equals beta R_n e(n - d) for d = round(tau/dt) and no other lag.
+def lag_residuals(engine: Any, integrator: str | None = None) -> tuple[int, dict[int, float]]:
+    """Residual of the cart's response to the commanded force for lags around d = tau/dt.
 
-    The force is recovered from the recorded cart velocity: under the engines'
-    semi-implicit Euler with explicit damping, v(n+1) = v(n) + dt (F_n / M - gamma v(n)).
-    A tiny m/M removes the rigid body's cart reaction so that the lag stands out.
+    The cart velocity obeys, for any one-step integrator that holds the force
+    F_n over step n (semi-implicit Euler, implicit, RK4, SAP) and a vanishing
+    pendulum reaction (m/M = 1e-7), v(n+1) = a v(n) + b F_n / M with constants
+    a, b of the stepper; a and b are fitted by least squares for each candidate
+    lag of F_n = M beta R_n e(n - lag), so no stepper is assumed.
+
+    Returns
+    -------
+    d : the expected lag (steps).
+    resid : {lag: relative residual of the fit} for lags d - 3 .. d + 3.
     """
-    name = engine.name
     p = BalanceParams(beta=20.306, nu=0.2)
     d = round(p.tau / p.dt)
     n_steps = 6 * d
     xi = GainNoise(3, 1, 1).next_chunk(n_steps)
     physical = CIPParams.from_reduced(p, mass_ratio=1e-7)
+    if integrator is not None:
+        physical = replace(physical, integrator=integrator)
     runner = engine.runner("single", p, 1, 1e-4, physical=physical)
     chunks = []
     for k in range(0, n_steps, runner.max_chunk if runner.max_chunk < n_steps else n_steps):
         chunks.append(runner.advance(xi[:, k : k + min(runner.max_chunk, n_steps - k)]))
     e = np.concatenate([c["balancing_error"] for c in chunks], axis=1)[0, :, 0]
     v = np.concatenate([c["base_velocity"] for c in chunks], axis=1)[0, :, 0]
-    force = (v[1:] - v[:-1]) / p.dt + p.gamma * v[:-1]  # F_n / M, n = 0 .. N-2
     gain = p.beta * (1.0 + p.noise_scale * xi[0, : n_steps - 1, 0])
     n = np.arange(2 * d, n_steps - 1)
-    resid = {
-        lag: np.linalg.norm(force[n] - gain[n] * e[n - lag]) / np.linalg.norm(force[n])
-        for lag in range(d - 3, d + 4)
-    }
+    resid = {}
+    for lag in range(d - 3, d + 4):
+        force = gain[n] * e[n - lag]
+        (a, b), *_ = np.linalg.lstsq(np.column_stack([v[n], force]), v[n + 1], rcond=None)
+        resid[lag] = float(
+            np.linalg.norm(v[n + 1] - a * v[n] - b * force) / np.linalg.norm(b * force)
+        )
+    return d, resid
+
+
+def delay_is_tau_over_dt_steps(engine: Any, integrator: str | None = None) -> str:
+    """The cart force at step n is beta R_n e(n - d) for d = round(tau/dt) and no other lag
+    (estimated by :func:`lag_residuals`, which assumes no stepper)."""
+    name = engine.name
+    d, resid = lag_residuals(engine, integrator)
     best = min(resid, key=resid.get)
     _require(best == d, f"{name}: force follows e with lag {best} steps, expected {d}")
     _require(resid[d] < 1e-3, f"{name}: residual at lag {d} is {resid[d]:.2e} >= 1e-3")

@@ -1,13 +1,15 @@
 """A catalogue of faults to inject into the full model: what the regression must catch.
 
-Each fault changes what the *engine* runs while the suite keeps what the model
-file declares (the twin, the reduced model and the controller's assumptions
-stay as they were), the way an engine bug, a wrong model constant or a
+Each fault changes what the *engine* runs, at the engine boundary of any
+rigid-body engine (its :class:`cip.runner.RolloutBackend` is wrapped), while the
+suite keeps what the model file declares (the twin, the reduced model and the
+controller's assumptions stay as they were), the way an engine bug, a wrong model constant or a
 controller bug would.  Three injection points, none of which edits the suite:
 
-* ``model``: a copy of the compiled ``MjModel`` the rollout backend steps is
-  edited (gravity, time step, masses, lengths, damping, the rod, the integrator),
-  then :func:`mujoco.mj_setConst` recomputes MuJoCo's derived constants;
+* ``model``: a copy of the compiled ``MjModel`` the rollout backend is built
+  from is edited (gravity, time step, masses, lengths, damping, the rod, the
+  integrator), then :func:`mujoco.mj_setConst` recomputes MuJoCo's derived
+  constants (MJX and Drake build their models from that copy too);
 * ``control``: the controls the backend receives are changed (one controller's
   gain or sign, one step of extra actuator latency);
 * ``params`` / ``noise``: the engine's controller gets other parameters (a delay
@@ -29,7 +31,7 @@ from dataclasses import dataclass, replace
 import mujoco
 import numpy as np
 
-from cip.runner import MujocoRollout
+from cip.names import ROD, cart_damper, hinge_joint, motor, tip_damper, tip_site
 from cipcore.models import MODEL_NAMES
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
@@ -51,17 +53,28 @@ class Fault:
     edit_params: Callable[[BalanceParams], BalanceParams] | None = None
     shared_noise: bool = False
     models: tuple[str, ...] = MODEL_NAMES  # the models it applies to
+    #: what the engine must declare for the fault to exist in it: a soft rod for a
+    #: softness change, an integrator read from the model file for a stepper change
+    needs: str = ""
+
+    def not_applicable(self, engine) -> str | None:
+        """Why this fault cannot exist in ``engine`` (a rigid-body engine), or None."""
+        if self.needs == "soft rod" and engine.capabilities.rod != "soft":
+            return f"its rod is {engine.capabilities.rod}, not a solref/solimp spring-damper"
+        if self.needs == "file integrator" and len(engine.integrators) < 2:
+            return f"it steps with its own integrator ({engine.capabilities.integrator})"
+        return None
 
     def engine_params(self, params: BalanceParams) -> BalanceParams:
         return self.edit_params(params) if self.edit_params else params
 
-    def backend(self) -> type | None:
-        """A :class:`cip.runner.RolloutBackend` class carrying the fault, or None."""
+    def backend(self, base: type) -> type:
+        """The engine's :class:`cip.runner.RolloutBackend` class ``base`` carrying the fault."""
         if self.edit_model is None and self.edit_ctrl is None:
-            return None
+            return base
         edit_model, edit_ctrl = self.edit_model, self.edit_ctrl
 
-        class FaultyRollout(MujocoRollout):
+        class FaultyRollout(base):
             def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int):
                 m = copy.deepcopy(model)
                 if edit_model is not None:
@@ -88,10 +101,10 @@ class Fault:
 
 
 # ------------------------------------------------------------ model edits
-def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, pattern: str) -> list[int]:
+def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, name_of: Callable[[int], str]) -> list[int]:
     out = []
     for i in (1, 2):
-        j = mujoco.mj_name2id(m, kind, pattern.format(i))
+        j = mujoco.mj_name2id(m, kind, name_of(i))
         if j >= 0:
             out.append(j)
     return out
@@ -111,23 +124,23 @@ def _scale_timestep(f: float) -> ModelEdit:
     return edit
 
 
-def _scale_bias(name: str, f: float) -> ModelEdit:
+def _scale_bias(name_of: Callable[[int], str], f: float) -> ModelEdit:
     def edit(m):
-        for a in _ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name + "_{}"):
+        for a in _ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name_of):
             m.actuator_biasprm[a][2] *= f
 
     return edit
 
 
 def _pendulum_bodies(m) -> list[int]:
-    return [m.jnt_bodyid[j] for j in _ids(m, mujoco.mjtObj.mjOBJ_JOINT, "theta_{}")]
+    return [m.jnt_bodyid[j] for j in _ids(m, mujoco.mjtObj.mjOBJ_JOINT, hinge_joint)]
 
 
 def _scale_length(f: float) -> ModelEdit:
     def edit(m):
         for b in _pendulum_bodies(m):
             m.body_ipos[b] *= f
-        for s in _ids(m, mujoco.mjtObj.mjOBJ_SITE, "tip_{}"):
+        for s in _ids(m, mujoco.mjtObj.mjOBJ_SITE, tip_site):
             m.site_pos[s] *= f
         # the tip damping force is -gamma m v: its coefficient does not depend on L
 
@@ -154,7 +167,7 @@ def _add_bob_inertia(kappa: float) -> ModelEdit:
 
 def _scale_rod_timeconst(f: float) -> ModelEdit:
     def edit(m):
-        e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "rod")
+        e = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, ROD)
         if e >= 0:
             m.eq_solref[e][0] *= f
 
@@ -165,17 +178,17 @@ def _remove_rod(m: mujoco.MjModel) -> None:
     m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EQUALITY)
 
 
-def _integrator(name: str) -> ModelEdit:
-    def edit(m):
-        m.opt.integrator = int(getattr(mujoco.mjtIntegrator, name))
-
-    return edit
+def _other_integrator(m: mujoco.MjModel) -> None:
+    """The engine steps with implicitfast where the file says Euler, else with Euler."""
+    euler = int(mujoco.mjtIntegrator.mjINT_EULER)
+    other = int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
+    m.opt.integrator = other if m.opt.integrator == euler else euler
 
 
 # ------------------------------------------------------------ control edits
 def _gain_on_controller_1(f: float) -> CtrlEdit:
     def edit(m, ctrl, memory):
-        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, "u_1")
+        a = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(1))
         ctrl = ctrl.copy()
         ctrl[:, :, a] *= f
         return ctrl
@@ -255,7 +268,7 @@ FAULT_TYPES: dict[str, dict] = {
             s,
             "relative",
             "cart damping gamma (1 + s)",
-            edit_model=_scale_bias("cart_damping", 1 + s),
+            edit_model=_scale_bias(cart_damper, 1 + s),
         ),
     },
     "tip_damping": {
@@ -264,7 +277,7 @@ FAULT_TYPES: dict[str, dict] = {
             s,
             "relative",
             "tip damping gamma (1 + s)",
-            edit_model=_scale_bias("tip_damping", 1 + s),
+            edit_model=_scale_bias(tip_damper, 1 + s),
         ),
     },
     "pendulum_length": {
@@ -316,6 +329,7 @@ FAULT_TYPES: dict[str, dict] = {
             "rod solref time constant x s",
             edit_model=_scale_rod_timeconst(s),
             models=("coupled",),
+            needs="soft rod",
         ),
         "identity": 1.0,
     },
@@ -365,14 +379,16 @@ FAULT_TYPES: dict[str, dict] = {
             "integrator",
             s,
             "flag",
-            "engine steps with implicitfast instead of Euler",
-            edit_model=_integrator("mjINT_IMPLICITFAST"),
+            "engine steps with another integrator than the file's (implicitfast for Euler, "
+            "else Euler)",
+            edit_model=_other_integrator,
+            needs="file integrator",
         ),
         "fixed": True,
     },
 }
 
-#: The sizes the selftest must flag (issue 9's list and more).
+#: The sizes the selftest must flag.
 CATALOGUE: tuple[tuple[str, float], ...] = (
     ("delay_late", 1),
     ("delay_short", 1),

@@ -3,7 +3,12 @@
 Stages (each seeded from the profile's seed, so a rerun gives the same numbers
 whatever the number of workers):
 
-1. lambda1 of the MuJoCo and the reduced model at a few gains (agreement);
+The engine under validation is any rigid-body engine of the registry
+(``engine``, MuJoCo by default; ``integrator`` steps its model file with another
+of MuJoCo's integrators): every engine goes through the same stages, checks
+and tolerances (its twin and twin tolerance are its own).
+
+1. lambda1 of the engine and the reduced model at a few gains (agreement);
 2. time series of both engines at the paper's gains under the same noise,
    small amplitude: RMS, spectra, STCC peaks, velocity spread (agreement);
 3. an amplitude scan: where the agreement breaks down;
@@ -42,7 +47,7 @@ from cipcore.params import BalanceParams, ParameterError
 from . import agreement, paper, plots
 from .checklog import with_limit
 from .fingerprint import numerics_fingerprint
-from .profiles import Profile
+from .profiles import PAPER_BETA, Profile
 from .report import write_json
 from .stats import FAIL, INCONCLUSIVE, PASS
 from .versions import package_versions
@@ -113,14 +118,23 @@ def model_file_inputs(model_files: dict[str, str] | None) -> dict[str, list[str]
     return {k: [str(v), _file_digest(v)] for k, v in sorted((model_files or {}).items())}
 
 
-def _run_key(profile: Profile, figures: bool, model_files: dict[str, str] | None = None) -> str:
-    """Hash of what fixes every stage's numbers: profile, figures setting, versions.
+def _run_key(
+    profile: Profile,
+    figures: bool,
+    model_files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> str:
+    """Hash of what fixes every stage's numbers: profile, figures setting, versions, and
+    the engine and integrator where they are not the default.
 
     The model files' paths are in it; their contents enter the records of the stages
     that read them (:data:`MODEL_FILE_STAGES`), so editing one recomputes just those.
     """
     key = {"profile": profile.as_dict(), "figures": figures, "versions": package_versions(),
            "model_files": {k: str(v) for k, v in (model_files or {}).items()}}  # fmt: skip
+    if engine != "mujoco" or integrator is not None:  # keys of default runs stay as they were
+        key.update(engine=engine, integrator=integrator)
     return hashlib.sha256(json.dumps(key, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -212,11 +226,15 @@ def run_validation(
     figures: bool = True, resume: bool = False,
     on_stage: Callable[[str, float, bool], None] | None = None,
     model_files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Run every stage; returns the results dictionary written to results.json.
 
     ``model_files`` maps "single" / "coupled" to a user's MJCF (``--mjcf``) run
-    instead of the shipped ``models/cip_<model>.xml``.
+    instead of the shipped ``models/cip_<model>.xml``; ``engine`` is the
+    rigid-body engine validated and ``integrator`` the MuJoCo integrator its
+    model file is stepped with (default: the file's).
 
     After each stage, ``DIR/results.json`` holds everything finished so far
     (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
@@ -230,8 +248,9 @@ def run_validation(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    store = _Stages(out_dir, _run_key(profile, figures, model_files), resume)
+    store = _Stages(out_dir, _run_key(profile, figures, model_files, engine, integrator), resume)
     file_inputs = model_file_inputs(model_files)
+    target = {"files": model_files, "engine": engine, "integrator": integrator}
     bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
     done: list[str] = []
@@ -240,11 +259,11 @@ def run_validation(
 
     def compute(name: str) -> Any:
         if name == "lambda1 agreement":
-            return agreement.lyapunov_checks(profile, workers, files=model_files)
+            return agreement.lyapunov_checks(profile, workers, **target)
         if name == "time-series agreement":
-            return agreement.series_checks(profile, workers, files=model_files)
+            return agreement.series_checks(profile, workers, **target)
         if name == "amplitude scan":
-            return agreement.amplitude_scan(profile, workers, files=model_files)
+            return agreement.amplitude_scan(profile, workers, **target)
         if name == "critical gains":
             return paper.critical_gains(profile, workers)
         if name == "lambda1 curve":
@@ -260,7 +279,7 @@ def run_validation(
             paper.clear_cache()  # the paper stages' shared simulations are no longer needed
             return nonlinear
         if name == "rod-length study":
-            return agreement.rod_length_study(profile, out_dir, workers)
+            return agreement.rod_length_study(profile, out_dir, workers, engine, integrator)
         return _figures(out_dir, state, profile) if figures else []
 
     try:
@@ -282,6 +301,7 @@ def run_validation(
             done.append(name)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
+            partial.update(engine=_engine_record(engine, integrator, model_files))
             partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
             write_json(partial, out_dir / "results.json")
             if on_stage:
@@ -302,6 +322,7 @@ def run_validation(
         raise
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
+    results.update(engine=_engine_record(engine, integrator, model_files))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     return results
 
@@ -316,6 +337,24 @@ def _write_crash(out_dir: Path, stage: str, exc: BaseException, partial: dict,
                    crashed={"stage": stage, "error": f"{type(exc).__name__}: {exc}",
                             "traceback": tb})  # fmt: skip
     write_json(partial, out_dir / "results.json")
+
+
+def _engine_record(
+    engine: str, integrator: str | None, files: dict[str, str] | None = None
+) -> dict[str, Any]:
+    """What ran: the engine, its capabilities and tolerances, the integrator per model."""
+    from cip.mjcf_params import read_mapping
+
+    eng = agreement.rigid_engine(engine)
+    ran = {
+        m: read_mapping(agreement.model_file(m, files, integrator)).integrator
+        if eng.integrators else eng.capabilities.integrator
+        for m in PAPER_BETA
+    }  # fmt: skip
+    tolerance = {m: eng.twin_tolerance_for(m) for m in PAPER_BETA}
+    return {"name": engine, "integrator_requested": integrator, "integrator": ran,
+            "capabilities": eng.capabilities.as_dict(), "twin_tolerance": tolerance,
+            "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
 def _figures(out_dir: Path, state: dict[str, Any], profile: Profile) -> list[Path]:

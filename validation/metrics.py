@@ -323,7 +323,7 @@ def _window_comoment(
 def stcc(
     x: np.ndarray, y: np.ndarray, dt: float, window: float, max_lag: float, stride: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Short-time cross-correlation coefficient R(x, y; tau)(t) (paper eq. STCC).
+    """Short-time cross-correlation coefficient R(x, y; tau)(t) (paper eq. (8)).
 
         R(x, y; tau)(t) = < (x(s) - m_x) (y(s + tau) - m_y) >_[t, t+Dt] / (sigma_x sigma_y)
 

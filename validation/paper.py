@@ -825,8 +825,8 @@ def amplitude_invariance(profile: Profile, threads: int | None) -> dict:
 
 # ------------------------------------------------------------------ nonlinear stick
 def nonlinear_comparison(profile: Profile, threads: int | None) -> list[dict]:
-    """Spectral slopes and laminar exponent of the nonlinear stick (eq. cabrera) beside the
-    linear single model (eq. bormann04) at beta = 20.306, same seed, each noise floor."""
+    """Spectral slopes and laminar exponent of the nonlinear stick (eq. (1)) beside the
+    linear single model (eq. (2)) at beta = 20.306, same seed, each noise floor."""
     n, T = profile.nonlinear_realizations, profile.nonlinear_duration
     seed = profile.seed_for("nonlinear")
     p = BalanceParams(beta=PAPER_BETA["single"])

@@ -81,7 +81,7 @@ class Profile:
         }
     )
     n_bootstrap: int = 500
-    # the nonlinear stick, eq. (cabrera), beside the linear single model
+    # the nonlinear stick, eq. (1), beside the linear single model
     nonlinear_realizations: int = 8
     nonlinear_duration: float = 600.0
     nonlinear_floors: tuple = (0.0, 1e-3)

@@ -163,7 +163,7 @@ def paper_section(results: dict) -> list[str]:
     if results.get("nonlinear"):
         lines += [
             "",
-            "## The nonlinear stick, eq. (cabrera), beside the linear model",
+            "## The nonlinear stick, eq. (1), beside the linear model",
             "",
             "| model | realisations x s | seed | low slope | high slope | crossover (Hz) "
             "| low slope = -1/2 | laminar exponent | laminar = -3/2 | largest abs error (m or rad) "

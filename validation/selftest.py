@@ -18,40 +18,68 @@ import time
 
 from cipcore.models import MODEL_NAMES
 
-from .agreement import instrument_checks
+from .agreement import instrument_checks, rigid_engine
 from .ci_options import add_ci_options, run_environment
 from .cli_args import nonnegative_int, positive_int
+from .engine_options import add_engine_options, check_engine_options
 from .faults import CATALOGUE, FAULT_TYPES, Fault, make_fault
 from .stats import FAIL
 
 
-def flagged_by(fault: Fault | None, seed: int, n_realizations: int) -> list[str]:
-    """Names of the checks that fail with ``fault`` injected (all of them run)."""
+def flagged_by(
+    fault: Fault | None,
+    seed: int,
+    n_realizations: int,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> list[str]:
+    """Names of the checks that fail with ``fault`` injected into ``engine`` (all of them run)."""
     models = fault.models if fault is not None else MODEL_NAMES
-    checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models)
+    checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models,
+                               engine=engine, integrator=integrator)  # fmt: skip
     return [c.name for c in checks if c.status == FAIL]
 
 
 def run_selftest(
-    seed: int = 1, n_realizations: int = 2, kinds: list[str] | None = None
+    seed: int = 1,
+    n_realizations: int = 2,
+    kinds: list[str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
 ) -> tuple[list[str], list[dict]]:
-    """(checks failing on the unmodified model, one row per catalogued fault)."""
-    clean = flagged_by(None, seed, n_realizations)
+    """(checks failing on the unmodified model, one row per catalogued fault).
+
+    A fault that cannot exist in ``engine`` (a rod softness change in a rigid rod,
+    an integrator change in an engine with its own stepper) is listed as not
+    applicable with the reason, and is not counted.
+    """
+    eng = rigid_engine(engine)
+    clean = flagged_by(None, seed, n_realizations, engine, integrator)
     rows = []
     for kind, size in CATALOGUE:
         if kinds and kind not in kinds:
             continue
         fault = make_fault(kind, size)
+        row = {"fault": kind, "size": size, "unit": fault.unit, "description": fault.description}
+        why = fault.not_applicable(eng)
+        if why is not None:
+            rows.append({**row, "flagged": None, "by": [], "not_applicable": why, "seconds": 0.0})
+            continue
         t = time.perf_counter()
-        failed = flagged_by(fault, seed, n_realizations)
-        rows.append({
-            "fault": kind, "size": size, "unit": fault.unit, "description": fault.description,
-            "flagged": bool(failed), "by": failed, "seconds": round(time.perf_counter() - t, 2),
-        })  # fmt: skip
+        failed = flagged_by(fault, seed, n_realizations, engine, integrator)
+        rows.append({**row, "flagged": bool(failed), "by": failed,
+                     "seconds": round(time.perf_counter() - t, 2)})  # fmt: skip
     return clean, rows
 
 
-def smallest_detectable(kind: str, seed: int, n_realizations: int, iterations: int = 12) -> dict:
+def smallest_detectable(
+    kind: str,
+    seed: int,
+    n_realizations: int,
+    iterations: int = 12,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> dict:
     """Bisection (geometric) on |size| between 1e-12 and the catalogue size.
 
     Fixed faults (flags, sign flips) and one-step delays have no smaller size:
@@ -59,20 +87,24 @@ def smallest_detectable(kind: str, seed: int, n_realizations: int, iterations: i
     """
     spec = FAULT_TYPES[kind]
     size = dict(CATALOGUE)[kind]
+
+    def flagged(fault: Fault, seed: int, n_realizations: int) -> list[str]:
+        return flagged_by(fault, seed, n_realizations, engine, integrator)
+
     if spec.get("fixed") or spec.get("integer"):
         return {"fault": kind, "smallest_flagged": size, "note": "no smaller size exists"}
     identity = spec.get("identity", 0.0)  # the size that means "no fault"
     sign = math.copysign(1.0, size - identity)
     hi, lo = abs(size - identity), 1e-12
-    if not flagged_by(make_fault(kind, identity + sign * hi), seed, n_realizations):
+    if not flagged(make_fault(kind, identity + sign * hi), seed, n_realizations):
         return {"fault": kind, "smallest_flagged": None, "note": "catalogue size not flagged"}
-    if flagged_by(make_fault(kind, identity + sign * lo), seed, n_realizations):
+    if flagged(make_fault(kind, identity + sign * lo), seed, n_realizations):
         unit = make_fault(kind, size).unit
         return {"fault": kind, "smallest_flagged": identity + sign * lo, "deviation": lo,
                 "unit": unit, "note": "flagged down to the bisection's floor"}  # fmt: skip
     for _ in range(iterations):
         mid = math.sqrt(hi * lo)
-        if flagged_by(make_fault(kind, identity + sign * mid), seed, n_realizations):
+        if flagged(make_fault(kind, identity + sign * mid), seed, n_realizations):
             hi = mid
         else:
             lo = mid
@@ -91,8 +123,12 @@ def format_table(clean: list[str], rows: list[dict]) -> str:
     out.append(f"{'fault':<24} {'size':>10} {'unit':<9} {'flagged':<8} by")
     for r in rows:
         by = ", ".join(r["by"]) if r["by"] else "-"
+        if r["flagged"] is None:
+            flag, by = "n/a", f"not applicable: {r['not_applicable']}"
+        else:
+            flag = "yes" if r["flagged"] else "NO"
         out.append(f"{r['fault']:<24} {r['size']:>10.4g} {r['unit']:<9} "
-                   f"{'yes' if r['flagged'] else 'NO':<8} {by}")  # fmt: skip
+                   f"{flag:<8} {by}")  # fmt: skip
     return "\n".join(out)
 
 
@@ -106,27 +142,33 @@ def cmd_selftest(a: argparse.Namespace) -> int:
         from .cli_args import check_out_file
 
         a.junit = check_out_file("--junit", a.junit, (".xml",))
+    check_engine_options(a)
     kinds = [k.strip() for k in a.faults.split(",")] if a.faults else None
     for k in kinds or []:
         if k not in FAULT_TYPES:
             raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(FAULT_TYPES)}")
     t = time.perf_counter()
-    clean, rows = run_selftest(a.seed, a.realizations, kinds)
+    clean, rows = run_selftest(a.seed, a.realizations, kinds, a.engine, a.integrator)
+    rows_run = [r for r in rows if r["flagged"] is not None]
     power = []
     if a.power:
-        power = [smallest_detectable(r["fault"], a.seed, a.realizations) for r in rows]
-    ok = not clean and all(r["flagged"] for r in rows)
+        power = [smallest_detectable(r["fault"], a.seed, a.realizations, engine=a.engine,
+                                     integrator=a.integrator) for r in rows_run]  # fmt: skip
+    ok = not clean and all(r["flagged"] for r in rows_run)
     if a.junit:
         from .junit import selftest_cases, write_junit
 
         write_junit(selftest_cases(clean, rows), a.junit, time.perf_counter() - t)
     if a.json:
-        from .agreement import ROD_TOLERANCE, TWIN_METRIC_FLOOR, TWIN_TOLERANCE
+        from .agreement import TWIN_METRIC_FLOOR
         from .report import jsonable
 
-        doc = {"cipval_selftest": 1, "pass": ok, "clean_failures": clean, "faults": rows,
-               "power": power, "tolerances": {"twin_trajectory_relative_l2": TWIN_TOLERANCE,
-               "twin_metric_floor": TWIN_METRIC_FLOOR, "rod_stretch_relative_l2": ROD_TOLERANCE},
+        eng = rigid_engine(a.engine)
+        tol = {"twin_trajectory_relative_l2": {m: eng.twin_tolerance_for(m) for m in MODEL_NAMES},
+               "twin_metric_floor": TWIN_METRIC_FLOOR,
+               "rod_stretch_relative_l2": eng.rod_tolerance}  # fmt: skip
+        doc = {"cipval_selftest": 1, "pass": ok, "engine": a.engine, "integrator": a.integrator,
+               "clean_failures": clean, "faults": rows, "power": power, "tolerances": tol,
                **run_environment()}  # fmt: skip
         print(json.dumps(jsonable(doc)))
     else:
@@ -143,8 +185,9 @@ def cmd_selftest(a: argparse.Namespace) -> int:
                 note = p.get("note") or f"(missed at deviation {p['missed_deviation']:.3g})"
                 print(f"  {p['fault']:<24} {p['smallest_flagged']:>10.4g}  deviation "
                       f"{p['deviation']:.3g} {p['unit']} {note}")  # fmt: skip
-        print(f"\nselftest {'passes' if ok else 'FAILS'}: {sum(r['flagged'] for r in rows)} of "
-              f"{len(rows)} faults flagged, {time.perf_counter() - t:.1f} s (seed {a.seed}, "
+        print(f"\nselftest of {a.engine} {'passes' if ok else 'FAILS'}: "
+              f"{sum(bool(r['flagged']) for r in rows_run)} of {len(rows_run)} applicable "
+              f"faults flagged, {time.perf_counter() - t:.1f} s (seed {a.seed}, "
               f"{a.realizations} realisations)")  # fmt: skip
     return 0 if ok else 1
 
@@ -168,5 +211,6 @@ def register_selftest(sub: argparse._SubParsersAction) -> None:
                    + ", ".join(FAULT_TYPES) + ")")  # fmt: skip
     p.add_argument("--power", action="store_true", help="bisect each type's smallest flagged size")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_engine_options(p)
     add_ci_options(p, verbose=False)
     p.set_defaults(func=cmd_selftest)

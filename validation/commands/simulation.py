@@ -7,6 +7,7 @@ import argparse
 import numpy as np
 
 from cipcore.atomic import WriteError
+from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 
 from ..ci_options import progress_enabled
@@ -35,9 +36,14 @@ def physical_from_args(a: argparse.Namespace):
     """The rigid body's :class:`cip.model.CIPParams` from the options (L = g / alpha)."""
     from cip.model import CIPParams
 
-    return CIPParams.from_reduced(
+    phys = CIPParams.from_reduced(
         params_from_args(a, beta=0.0), rod_length=a.rod_length, mass_ratio=a.mass_ratio
     )
+    if getattr(a, "integrator", None) is not None:  # MuJoCo's names, checked by CIPParams
+        from dataclasses import replace
+
+        phys = replace(phys, integrator=a.integrator)
+    return phys
 
 
 def add_physical_args(p: argparse.ArgumentParser, *, note: str = "") -> None:
@@ -53,6 +59,13 @@ def add_physical_args(p: argparse.ArgumentParser, *, note: str = "") -> None:
         default=DEFAULT_MASS_RATIO,
         help=f"bob / cart mass m/M (dimensionless){note}",
     )
+    p.add_argument(
+        "--integrator",
+        default=None,
+        metavar="NAME",
+        help="MuJoCo integrator of the rigid body (Euler, implicit, implicitfast, RK4; "
+        f"default Euler; engines with their own stepper refuse it){note}",
+    )
 
 
 # ---------------------------------------------------------------- simulate
@@ -63,6 +76,12 @@ def cmd_simulate(a: argparse.Namespace) -> int:
     kw = engine_options(a, engine)
     if engine.capabilities.rigid_body:
         kw["physical"] = physical_from_args(a)
+        follows = getattr(engine, "integrators", ())
+        if a.integrator is not None and a.integrator not in follows:
+            raise ParameterError(
+                f"--integrator {a.integrator}: engine {a.engine!r} steps with "
+                f"({', '.join(follows) or engine.capabilities.integrator})"
+            )
     check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
     traj = engine.simulate(
         a.model,

@@ -21,6 +21,7 @@ from ..cli_args import (
     positive_int,
 )
 from ..divergence import group_lines
+from ..engine_options import add_engine_options, check_engine_options
 from ..profiles import PROFILES
 
 
@@ -67,6 +68,16 @@ def cmd_run(a: argparse.Namespace) -> int:
             f"this run uses {a.profile!r}"
         )
     files = model_files(a.mjcf)  # a bad model file is refused before any work
+    check_engine_options(a)
+    if baseline is not None:
+        made = baseline.get("engine") or {}  # baselines without the record are MuJoCo's
+        b_engine, b_integ = made.get("name", "mujoco"), made.get("integrator_requested")
+        if (b_engine, b_integ) != (a.engine, a.integrator):
+            raise ParameterError(
+                f"--baseline: {a.baseline!r} was made with engine {b_engine!r} (integrator "
+                f"{b_integ or 'of the file'}), this run uses {a.engine!r} (integrator "
+                f"{a.integrator or 'of the file'})"
+            )
     out = check_out_dir("--out", a.out)
     junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
     if baseline is not None and a.baseline_mode == "auto":  # other models: refused before work
@@ -94,6 +105,8 @@ def cmd_run(a: argparse.Namespace) -> int:
                 resume=a.resume,
                 on_stage=on_stage,
                 model_files=files,
+                engine=a.engine,
+                integrator=a.integrator,
             )
         except WriteError as exc:
             exc.note = (f"the stages finished before it are kept in {out / 'stages'}; free "
@@ -160,6 +173,7 @@ def cmd_baseline(a: argparse.Namespace) -> int:
     from ..report import write_json
 
     out = check_out_file("--out", a.out, (".json",))
+    check_engine_options(a)
     if a.from_results:
         read_results(a.from_results, "--from")
         write_bytes(out, Path(a.from_results).read_bytes())
@@ -167,12 +181,10 @@ def cmd_baseline(a: argparse.Namespace) -> int:
         with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
             try:
                 results = run_validation(
-                    PROFILES[a.profile],
-                    Path(tmp),
-                    workers=a.workers,
-                    progress=progress_enabled(),
-                    figures=False,
-                )
+                    PROFILES[a.profile], Path(tmp), workers=a.workers,
+                    progress=progress_enabled(), figures=False, engine=a.engine,
+                    integrator=a.integrator,
+                )  # fmt: skip
             except RunInterrupted:
                 name, status = interrupted_status(got)
                 print(
@@ -241,6 +253,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="reuse the stages an interrupted run with the same profile left in --out",
     )
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    add_engine_options(p)
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
@@ -268,4 +281,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="threads / processes (count >= 1; default: all cores)",
     )
+    add_engine_options(p)
     p.set_defaults(func=cmd_baseline)

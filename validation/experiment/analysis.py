@@ -3,7 +3,7 @@
 For every trial and every stick i:
 
 * tau_hat: the first dominant peak (:func:`validation.metrics.first_dominant_peak`)
-  of the STCC R(x_T', x_M'; tau) (paper eq. STCC; R(q_T', q_Mi') coupled),
+  of the STCC R(x_T', x_M'; tau) (paper eq. (8); R(q_T', q_Mi') coupled),
   averaged over the trial's windows (window Dt = 5 s as in paper section 3.3,
   lags 0 .. 0.5 s, a window every 1 s; windows whose R is not finite at some
   lag, e.g. a motionless stretch, are left out of the average).  A peak must

@@ -1,9 +1,9 @@
-"""Bot subjects: the pseudo-neural controller of eq. (sss08:TM) taking a seat.
+"""Bot subjects: the pseudo-neural controller of eq. ((5)) taking a seat.
 
 The bot watches the screen as a subject does: at frame k it sees its own
 balancing error e_k = (thick line) - (thin line) as displayed, held until the
 next frame.  Its hand, the lower end, obeys the controller equation of the
-reduced model (paper eqs. bormann04:TM, sss08:TM)::
+reduced model (paper eqs. (3), (5))::
 
     x_M'' + gamma x_M' = beta R(t) e_screen(t - tau),   R = 1 + nu xi(t),
 

@@ -1,12 +1,12 @@
 """The task model stepped on the server between 20 ms frames (paper section 4.1).
 
 The subjects' mice replace the pseudo-neural controllers of the reduced model;
-only the upper ends are computed.  Single task, eq. (bormann04:TM) with x_M
+only the upper ends are computed.  Single task, eq. ((3)) with x_M
 from the mouse::
 
     x_T'' + gamma x_T' = alpha (x_T - x_M)
 
-Coupled task, eq. (sss08:TM) with q_M1, q_M2 from two mice::
+Coupled task, eq. ((5)) with q_M1, q_M2 from two mice::
 
     2 q_T'' + 2 gamma q_T' = alpha (Dq_1 + Dq_2),     Dq_i = q_T - q_Mi,
 

@@ -14,6 +14,7 @@ from cipcore.registry import get_engine
 
 from .evaluate import evaluate_point
 from .gains import point_gains
+from .gpu import evaluate_points as evaluate_gpu_points
 from .lifeline import die_with_parent
 from .store import DirectoryLock, Store, write_dataset
 from .study import Study, point_key
@@ -79,10 +80,8 @@ def run_sweep(
         try:
             if not todo:
                 pass
-            elif packs:
-                from ..gpu_sweep import evaluate_points  # one batch of every point x realisation
-
-                for p, r in zip(todo, evaluate_points(sd, todo), strict=True):
+            elif packs:  # one batch of every point x realisation
+                for p, r in zip(todo, evaluate_gpu_points(sd, todo), strict=True):
                     finished(p, r)
             elif scheduler:
                 _run_dask(scheduler, sd, todo, finished, gains)

@@ -29,9 +29,9 @@ from cipcore.noise import GainNoise
 from cipcore.params import ParameterError, whole_steps
 from cipcore.schema import Trajectory
 
-from .sweeps.evaluate import nan_to_none, trajectory_metrics
-from .sweeps.mapping import point_params
-from .sweeps.study import Study, point_seed
+from .evaluate import nan_to_none, trajectory_metrics
+from .mapping import point_params
+from .study import Study, point_seed
 
 GPU_METRICS = ("rms", "max_angle", "agreement", "tau_hat", "slopes")
 

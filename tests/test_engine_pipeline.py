@@ -1,0 +1,131 @@
+"""One pipeline for every rigid-body engine: its own twin, direct checks, faults at its boundary."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cip.mjcf_params import read_mapping
+from cipcore.params import BalanceParams
+from cipcore.registry import availability, get_engine
+from reduced.twin import TwinParams, simulate_twin
+from validation.agreement import instrument_checks, model_file
+from validation.faults import make_fault
+from validation.metrics import relative_l2
+
+BETA = {"single": 20.306, "coupled": 21.032}
+
+
+def _engine(name: str):
+    reason = availability(name)
+    if reason is not None:
+        pytest.skip(f"engine {name!r} unavailable: {reason}")
+    return get_engine(name)
+
+
+def _twin_distance(name: str, model: str, integrator: str | None, duration: float = 2.0):
+    eng = _engine(name)
+    m = model_file(model, None, integrator)
+    mp = read_mapping(m)
+    p = BalanceParams(beta=BETA[model])
+    tw = TwinParams(**eng.twin_terms(mp))
+    kw = {"amplitude": 1e-6, "fields": ("balancing_error",)}
+    full = eng.simulate(model, p, duration, 2, 3, physical=mp.physical(), mj_model=m, **kw)
+    twin = simulate_twin(model, p, tw, duration, 2, 3, **kw)
+    return relative_l2(full["balancing_error"], twin["balancing_error"]), eng, tw
+
+
+@pytest.mark.parametrize("integrator", ["implicitfast", "RK4"])
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_twin_steps_as_mujoco_for_each_integrator(model: str, integrator: str) -> None:
+    """MuJoCo stepping RK4 or implicitfast meets its own twin at the floor, not the Euler twin."""
+    d, eng, tw = _twin_distance("mujoco", model, integrator)
+    assert tw.integrator == integrator
+    assert d < eng.twin_tolerance_for(model)
+    euler = TwinParams(**{**tw.as_dict(), "integrator": "Euler"})
+    m = model_file(model, None, integrator)
+    p = BalanceParams(beta=BETA[model])
+    kw = {"amplitude": 1e-6, "fields": ("balancing_error",)}
+    full = eng.simulate(model, p, 2.0, 2, 3, physical=read_mapping(m).physical(), mj_model=m, **kw)
+    e_euler = simulate_twin(model, p, euler, 2.0, 2, 3, **kw)["balancing_error"]
+    assert relative_l2(full["balancing_error"], e_euler) > 1e3 * eng.twin_tolerance_for(model)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
+    """Drake's SAP step with its near-rigid rod is matched to the twin's floor."""
+    d, eng, _ = _twin_distance("drake", model, None, duration=1.0)
+    assert eng.capabilities.rod == "rigid" and eng.capabilities.twin
+    assert d < eng.twin_tolerance_for(model)
+
+
+@pytest.mark.parametrize("name", ["mujoco", "drake"])
+@pytest.mark.parametrize(
+    ("kind", "size"), [("delay_late", 1), ("cart_damping", 0.01), ("pendulum_length", 0.005)]
+)
+def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: str, size: float):
+    """A one-step-late delay, +1 % cart damping and +0.5 % pole length in the single model,
+    injected into the engine, fail the checks `run --engine` and `engines` both run."""
+    _engine(name)
+    fault = make_fault(kind, size)
+    checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine=name)
+    failed = [c.name for c in checks if c.status == "fail"]
+    assert failed, f"{kind} {size} in {name} was not flagged"
+    if kind == "delay_late":
+        assert "delay.single" in failed
+
+
+def test_one_step_late_delay_fails_mjx() -> None:
+    """MJX too (a control edit: the compiled step is reused, no new compilation)."""
+    _engine("mjx")
+    fault = make_fault("delay_late", 1)
+    checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine="mjx")
+    failed = [c.name for c in checks if c.status == "fail"]
+    assert "delay.single" in failed and "twin.trajectory.single" in failed
+
+
+def test_unmodified_drake_passes_every_direct_check() -> None:
+    _engine("drake")
+    checks = instrument_checks(1, 1, threads=1, engine="drake")
+    assert [c.name for c in checks if c.status != "pass"] == []
+
+
+def test_a_fault_an_engine_cannot_have_is_not_applicable() -> None:
+    eng = _engine("drake")
+    assert "rigid" in make_fault("rod_softness", 25.0).not_applicable(eng)
+    assert "own integrator" in make_fault("integrator", 1).not_applicable(eng)
+    assert make_fault("rod_softness", 25.0).not_applicable(get_engine("mujoco")) is None
+
+
+def test_run_refuses_what_the_engine_cannot_do(capsys) -> None:
+    from validation.cli import main
+
+    for argv, text in (
+        (["run", "--engine", "reduced"], "not a rigid-body engine"),
+        (["run", "--engine", "mujoco", "--integrator", "Verlet"], "--integrator must be one of"),
+        (["selftest", "--engine", "nosuch"], "engine must be one of"),
+    ):
+        assert main([*argv, "--profile", "smoke"] if argv[0] == "run" else argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and text in err[0], err
+
+
+def test_integrator_is_set_in_the_model_file_and_refused_where_fixed(capsys) -> None:
+    from validation.cli import main
+
+    m = model_file("single", None, "RK4")
+    assert read_mapping(m).integrator == "RK4"
+    assert np.array_equal(m.opt.gravity, model_file("single").opt.gravity)
+    _engine("drake")
+    assert main(["selftest", "--engine", "drake", "--integrator", "RK4"]) == 2
+    assert "it steps with SAP" in capsys.readouterr().err
+
+
+def test_a_baseline_of_another_engine_is_refused(tmp_path, capsys) -> None:
+    """A regression run compares an engine with a baseline of the same engine and integrator."""
+    from validation.cli import main
+
+    argv = ["run", "--baseline", "validation/data/baseline_quick.json", "--out", str(tmp_path)]
+    assert main([*argv, "--integrator", "RK4"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "was made with engine 'mujoco'" in err[0]

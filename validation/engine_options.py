@@ -1,0 +1,54 @@
+"""``--engine`` and ``--integrator`` of the commands that validate one rigid-body engine.
+
+``run``, ``selftest`` and ``baseline`` validate the engine named by ``--engine``
+(any rigid-body engine of :mod:`cipcore.registry`, MuJoCo by default) with the
+same stages, checks and tolerances; ``--integrator`` steps the model file with
+another of MuJoCo's integrators (Euler, implicit, implicitfast, RK4), for the
+engines that follow the file's integrator, and the exact twin follows it.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from cipcore.params import ParameterError
+from cipcore.registry import check_engine_name, engine_names
+
+#: MuJoCo's integrator names, as the MJCF spells them.
+INTEGRATORS = ("Euler", "implicit", "implicitfast", "RK4")
+
+
+def add_engine_options(p: argparse.ArgumentParser) -> None:
+    """Add ``--engine`` and ``--integrator`` to a command's parser."""
+    p.add_argument(
+        "--engine",
+        default="mujoco",
+        metavar="NAME",
+        help=f"the rigid-body engine to validate ({', '.join(engine_names())}; default mujoco)",
+    )
+    p.add_argument(
+        "--integrator",
+        default=None,
+        metavar="NAME",
+        help=f"step the model file with this MuJoCo integrator ({', '.join(INTEGRATORS)}; "
+        "default: the file's <option integrator>); engines with their own stepper refuse it",
+    )
+
+
+def check_engine_options(a: argparse.Namespace) -> None:
+    """Refuse, in one line, an unknown or unavailable engine or an integrator it cannot run."""
+    from .agreement import rigid_engine
+
+    check_engine_name(a.engine)
+    eng = rigid_engine(a.engine)  # availability and rigid body, one line each
+    if a.integrator is None:
+        return
+    if a.integrator not in INTEGRATORS:
+        raise ParameterError(
+            f"--integrator must be one of {', '.join(INTEGRATORS)}, got {a.integrator!r}"
+        )
+    if a.integrator not in eng.integrators:
+        have = ", ".join(eng.integrators) or f"none: it steps with {eng.capabilities.integrator}"
+        raise ParameterError(
+            f"--integrator {a.integrator}: engine {a.engine!r} steps the file with ({have})"
+        )
