@@ -10,7 +10,6 @@ from cipcore.registry import engine_names
 
 from .cli_args import check_out_dir
 from .engine_options import INTEGRATORS
-from .engines import compare_engines, parse_engines, write_engine_reports
 from .profiles import PROFILES
 
 EXIT_OK, EXIT_FAIL = 0, 1
@@ -18,6 +17,8 @@ EXIT_OK, EXIT_FAIL = 0, 1
 
 def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError
+
+    from .engines import compare_engines, parse_engines, write_engine_reports
 
     names = parse_engines(a.engines)
     if a.threads is not None and a.threads < 1:
