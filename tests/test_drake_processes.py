@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("pydrake")
 
-from cipcore.params import BalanceParams  # noqa: E402
-from cipcore.registry import get_engine  # noqa: E402
+from cipcore.params import BalanceParams
+from cipcore.registry import get_engine
 
 
 @pytest.mark.parametrize("model", ["single", "coupled"])

@@ -8,8 +8,8 @@ import pytest
 pytest.importorskip("jax")
 pytest.importorskip("mujoco.mjx")
 
-from cipcore.params import BalanceParams  # noqa: E402
-from cipcore.registry import get_engine  # noqa: E402
+from cipcore.params import BalanceParams
+from cipcore.registry import get_engine
 
 LOWERING = "/jax/core/compile/jaxpr_to_mlir_module_duration"
 
