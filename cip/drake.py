@@ -65,6 +65,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import signal
+import sys
 import weakref
 from multiprocessing.connection import Connection
 
@@ -139,12 +140,25 @@ def _serve(conn: Connection, g: CIPGeometry, n_realizations: int) -> None:
         conn.send(block.advance(*job))
 
 
+#: modules that start threads of their own: forking a process that loaded one can deadlock
+#: the child, so the workers then start from a fork server instead (slower: each imports)
+THREADED_RUNTIMES = ("jax", "warp", "torch")
+
+
+def _start_method() -> str:
+    """``fork`` (cheap: the child has pydrake loaded) unless a threaded runtime is loaded
+    or the platform has no fork; then ``forkserver`` or ``spawn``."""
+    methods = mp.get_all_start_methods()
+    if "fork" in methods and not any(m in sys.modules for m in THREADED_RUNTIMES):
+        return "fork"
+    return "forkserver" if "forkserver" in methods else "spawn"
+
+
 class _Workers:
     """Worker processes, one block of consecutive realisations each (ended with the rollout)."""
 
     def __init__(self, g: CIPGeometry, sizes: list[int]) -> None:
-        methods = mp.get_all_start_methods()
-        ctx = mp.get_context("fork" if "fork" in methods else "spawn")
+        ctx = mp.get_context(_start_method())
         self.conns, self.procs = [], []
         for size in sizes:
             parent, child = ctx.Pipe()

@@ -42,3 +42,16 @@ def test_processes_follow_threads_and_end_with_the_rollout():
     for p in procs:
         p.join(timeout=10)
         assert not p.is_alive()
+
+
+def test_workers_fork_only_without_a_threaded_runtime(monkeypatch):
+    import sys
+
+    from cip import drake
+
+    monkeypatch.delitem(sys.modules, "jax", raising=False)
+    monkeypatch.delitem(sys.modules, "warp", raising=False)
+    monkeypatch.delitem(sys.modules, "torch", raising=False)
+    assert drake._start_method() == "fork"
+    monkeypatch.setitem(sys.modules, "jax", sys)
+    assert drake._start_method() == "forkserver"
