@@ -216,6 +216,9 @@ class DrakeRollout:
             self.block, self.workers = None, _Workers(g, sizes)
             c = build_plant(g)  # the parent only needs the state layout
             plant = c.plant
+        self.cip, self.plant = c, plant
+        #: the in-process contexts, one per realisation (none when workers step them)
+        self.contexts = self.block.contexts if self.block is not None else []
         nq = plant.num_positions()
         self.nx = nq + plant.num_velocities()
         # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
