@@ -58,6 +58,15 @@ Drake's own discrete step (``ExecuteForcedEvents``: about 30 us for the single
 and 115 us for the coupled model at load 2, the rod's SAP solve being most of
 it), the rest the per-step Python calls.  No linearisation is offered: the
 discrete SAP plant has no continuous-time qacc for a rigid rod.
+
+Processes: pydrake's step holds the GIL, so ``threads`` are worker processes, each
+stepping a block of consecutive realisations (:class:`DrakeRollout`); every
+realisation has its own context and element-wise forces, so any split gives the
+same numbers to the bit.  Each delay chunk costs one round trip of states and
+controls per worker.  ``python benchmarks/bench_engines.py --engines drake
+--realizations 8 --duration 0.5 --threads 1,2`` at load 29 on 2 cores: 1756 and 1724
+realisation-steps/s (x0.98): on a machine that loaded a second process gets no
+core of its own, so that ratio says nothing of an idle machine.
 """
 
 from __future__ import annotations
