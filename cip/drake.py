@@ -222,9 +222,9 @@ class DrakeRollout:
             plant = self.block.plant
             c = self.block.cip
         else:
+            c = build_plant(g)  # the state layout; built first, so forked workers inherit
+            plant = c.plant  # pydrake imported
             self.block, self.workers = None, _Workers(g, sizes)
-            c = build_plant(g)  # the parent only needs the state layout
-            plant = c.plant
         self.cip, self.plant = c, plant
         #: the in-process contexts, one per realisation (none when workers step them)
         self.contexts = self.block.contexts if self.block is not None else []
