@@ -65,8 +65,10 @@ realisation has its own context and element-wise forces, so any split gives the
 same numbers to the bit.  Each delay chunk costs one round trip of states and
 controls per worker.  ``python benchmarks/bench_engines.py --engines drake
 --realizations 8 --duration 0.5 --threads 1,2`` at load 29 on 2 cores: 1756 and 1724
-realisation-steps/s (x0.98): on a machine that loaded a second process gets no
-core of its own, so that ratio says nothing of an idle machine.
+realisation-steps/s (x0.98); at load 4.7, 5515 and 5026 (x0.91).  Neither says
+anything of an idle machine: at load 5 two pure-Python loops took as long in two
+processes as one after the other (0.38 s against 0.39 s), so the shared machine gave
+this session no second core; the 1.7x expected of 2 cores is not measured here.
 """
 
 from __future__ import annotations
