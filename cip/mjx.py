@@ -28,6 +28,16 @@ criterion, whereas MuJoCo on the CPU always takes a Newton iteration (exact for
 the one rod row).  With ``opt.tolerance = 0`` MJX matches MuJoCo to 1.7e-16 and
 the twin to 1.4e-11 (1 s, seed 1).  The engine runs the file as written, so its
 declared tolerances are that measured floor (a finding about MJX, not hidden).
+
+Compilation: one executable per (model, padded batch, chunk length), the batch
+padded to :func:`bucket` rows, so batch sizes 1-4, 5-8, 9-16, ... share one, and
+kept across processes by JAX's persistent compilation cache (:func:`cache_dir`);
+each compile's time is appended to :data:`COMPILE_LOG`.  The cache saves XLA's
+backend compile only: tracing and lowering ``mjx.step`` remain.  Measured (coupled,
+100-step chunks, ``python benchmarks/bench_engines.py --engines mjx --realizations
+3,4,8 --duration 0.2`` twice with an empty ``XDG_CACHE_HOME``, 2 cores at load
+23-29): first process 75.6 s (4 rows) and 74.0 s (8 rows), batch 4 after batch 3
+0.18 s (nothing compiled); second process 28.3 s and 20.8 s (cache hits).
 """
 
 from __future__ import annotations
@@ -35,6 +45,9 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import io
+import os
+import time
+from pathlib import Path
 from typing import Any
 
 import mujoco
@@ -44,7 +57,44 @@ from cipcore.engine import Capabilities
 
 from .engines import RigidBodyEngine
 
-_COMPILED: dict[str, Any] = {}
+#: smallest padded batch; a batch of R realisations runs as :func:`bucket` (R) rows
+MIN_BUCKET = 4
+#: above this many rows the buckets are multiples of it instead of powers of two
+BUCKET_STEP = 1024
+
+_CHUNK_FNS: dict[str, Any] = {}  # model hash -> (jit(vmap(chunk)), jax.numpy)
+_COMPILED: dict[tuple[str, int, int], Any] = {}  # (model hash, rows, steps) -> executable
+#: one entry per compiled chunk shape, in order: model hash, rows, steps, seconds, cache
+COMPILE_LOG: list[dict[str, Any]] = []
+
+
+def bucket(n_realizations: int) -> int:
+    """Rows a batch of ``n_realizations`` is padded to: a power of two >= 4, at most 1024,
+    then a multiple of 1024, so any batch size reuses one of a few compiled shapes."""
+    if n_realizations <= BUCKET_STEP:
+        return max(MIN_BUCKET, 1 << (n_realizations - 1).bit_length())
+    return -(-n_realizations // BUCKET_STEP) * BUCKET_STEP
+
+
+def cache_dir() -> Path:
+    """JAX's persistent compilation cache of the engine: ``$JAX_COMPILATION_CACHE_DIR``
+    when set, else ``$XDG_CACHE_HOME/cipval/jax`` (``~/.cache/cipval/jax``)."""
+    env = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "cipval" / "jax"
+
+
+def _use_persistent_cache(jax: Any) -> None:
+    """Point JAX's persistent cache at :func:`cache_dir` unless one is configured already.
+
+    JAX reads ``JAX_COMPILATION_CACHE_DIR`` itself; a directory set by the caller wins.
+    JAX fixes its cache at its first compilation, so this takes effect only when MJX
+    compiles first in the process (the usual case for the engine).
+    """
+    if not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", str(cache_dir()))
 
 
 def _model_key(model: mujoco.MjModel) -> str:
@@ -53,14 +103,14 @@ def _model_key(model: mujoco.MjModel) -> str:
     return hashlib.sha256(buf.tobytes()).hexdigest()
 
 
-def _compiled_chunk(model: mujoco.MjModel):
+def _chunk_fn(key: str, model: mujoco.MjModel):
     """jit(vmap(scan of mjx.step over a chunk)) for ``model``, built once per model."""
-    key = _model_key(model)
-    if key in _COMPILED:
-        return _COMPILED[key]
+    if key in _CHUNK_FNS:
+        return _CHUNK_FNS[key]
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    _use_persistent_cache(jax)
     import jax.numpy as jnp
 
     with contextlib.redirect_stdout(io.StringIO()):
@@ -80,33 +130,76 @@ def _compiled_chunk(model: mujoco.MjModel):
         (_, _, w), (qs, vs) = jax.lax.scan(body, (qpos, qvel, warm), ctrl)
         return qs, vs, w
 
-    fn = jax.jit(jax.vmap(chunk))
-    _COMPILED[key] = (fn, jnp)
-    return _COMPILED[key]
+    _CHUNK_FNS[key] = (jax.jit(jax.vmap(chunk)), jnp)
+    return _CHUNK_FNS[key]
+
+
+def compiled_chunk(model: mujoco.MjModel, rows: int, steps: int):
+    """The executable advancing ``rows`` realisations by ``steps`` steps (compiled once
+    per shape and process, loaded from the persistent cache when another process
+    compiled it); its compile time goes to :data:`COMPILE_LOG`."""
+    key = _model_key(model)
+    shape = (key, rows, steps)
+    if shape in _COMPILED:
+        return _COMPILED[shape]
+    fn, jnp = _chunk_fn(key, model)
+    import jax
+
+    hits = []
+    listener = lambda event, **kw: hits.append(event)  # noqa: E731
+    jax.monitoring.register_event_listener(listener)
+    f64 = jnp.float64
+    t0 = time.perf_counter()
+    try:
+        _COMPILED[shape] = fn.lower(
+            jax.ShapeDtypeStruct((rows, model.nq), f64),
+            jax.ShapeDtypeStruct((rows, model.nv), f64),
+            jax.ShapeDtypeStruct((rows, model.nv), f64),
+            jax.ShapeDtypeStruct((rows, steps, model.nu), f64),
+        ).compile()
+    finally:
+        seconds = time.perf_counter() - t0
+        jax.monitoring.unregister_event_listener(listener)
+    cache = "hit" if "/jax/compilation_cache/cache_hits" in hits else "miss"
+    COMPILE_LOG.append({"model": key[:12], "rows": rows, "steps": steps,
+                        "seconds": seconds, "persistent_cache": cache})  # fmt: skip
+    return _COMPILED[shape]
 
 
 class MJXRollout:
-    """:class:`cip.runner.RolloutBackend` running MJX (float64) over a delay chunk."""
+    """:class:`cip.runner.RolloutBackend` running MJX (float64) over a delay chunk.
+
+    The batch is padded to :func:`bucket` rows (copies of the first realisation, whose
+    results are dropped), so every batch size of a bucket runs one compiled executable;
+    the realisations are independent rows of the vmapped step, so their results are
+    bit-identical to an unpadded batch (``tests/test_mjx_compile.py``).
+    """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        self.fn, self.jnp = _compiled_chunk(model)
+        self.model = model
         self.nq, self.nv, self.dt = model.nq, model.nv, float(model.opt.timestep)
-        self.warm = np.zeros((n_realizations, model.nv))
+        self.n, self.rows = n_realizations, bucket(n_realizations)
+        self.warm = np.zeros((self.rows, model.nv))
+
+    def _pad(self, x: np.ndarray) -> np.ndarray:
+        if self.rows == self.n:
+            return np.ascontiguousarray(x)
+        return np.concatenate([x, np.repeat(x[:1], self.rows - self.n, axis=0)])
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
-        nq, nv = self.nq, self.nv
-        jnp = self.jnp
-        qs, vs, warm = self.fn(
-            jnp.asarray(state[:, 1 : 1 + nq]),
-            jnp.asarray(state[:, 1 + nq : 1 + nq + nv]),
-            jnp.asarray(self.warm),
-            jnp.asarray(ctrl),
-        )
+        nq, nv, n_real = self.nq, self.nv, self.n
         n = ctrl.shape[1]
+        fn = compiled_chunk(self.model, self.rows, n)
+        qs, vs, warm = fn(
+            self._pad(state[:, 1 : 1 + nq]),
+            self._pad(state[:, 1 + nq : 1 + nq + nv]),
+            self.warm,
+            self._pad(ctrl),
+        )
         out[...] = state[:, None, :]
         out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        out[:, :, 1 : 1 + nq] = np.asarray(qs)
-        out[:, :, 1 + nq : 1 + nq + nv] = np.asarray(vs)
+        out[:, :, 1 : 1 + nq] = np.asarray(qs)[:n_real]
+        out[:, :, 1 + nq : 1 + nq + nv] = np.asarray(vs)[:n_real]
         self.warm = np.asarray(warm)
 
     def warnings(self) -> int:

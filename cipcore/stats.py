@@ -13,7 +13,6 @@ that want only the finite values say so with ``finite_only=True``.
 from __future__ import annotations
 
 import numpy as np
-import scipy.stats
 
 
 def ci95_half_width(samples: np.ndarray, *, finite_only: bool = False) -> float:
@@ -24,6 +23,8 @@ def ci95_half_width(samples: np.ndarray, *, finite_only: bool = False) -> float:
     n = x.size
     if n < 2:
         return float("nan")
+    import scipy.stats
+
     return float(scipy.stats.t.ppf(0.975, n - 1) * x.std(ddof=1) / np.sqrt(n))
 
 

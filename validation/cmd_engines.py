@@ -12,7 +12,6 @@ from cipcore.registry import engine_names
 from .ci_options import add_ci_options, run_environment
 from .cli_args import add_threads_arg, check_out_dir, check_out_file, nonnegative_int
 from .engine_options import INTEGRATORS
-from .engines import compare_engines, parse_engines, write_engine_reports
 from .profiles import PROFILES
 
 EXIT_OK, EXIT_FAIL = 0, 1
@@ -22,6 +21,7 @@ def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError
 
     from .commands.contract import register_engine_cmd
+    from .engines import compare_engines, parse_engines, write_engine_reports
 
     cmd_engine = register_engine_cmd(a.engine_cmd)
     if cmd_engine is not None:  # the reference, MuJoCo (the speed baseline) and the command

@@ -11,8 +11,6 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import scipy.signal
-import scipy.stats
 
 
 # ---------------------------------------------------------------- spectra
@@ -30,6 +28,8 @@ def power_spectrum(
     """
     x = np.asarray(x, dtype=float)
     nperseg = min(x.shape[-1], max(16, round(segment / dt)))
+    import scipy.signal
+
     f, s = scipy.signal.welch(x, fs=1.0 / dt, window="hann", nperseg=nperseg, detrend="linear")
     return f[1:], s[..., 1:]
 
@@ -585,5 +585,7 @@ def power_law_exponent(durations: np.ndarray, tmin: float, tmax: float, n_bins: 
     sel = h >= 5
     if sel.sum() < 3:
         return float("nan"), float("nan")
+    import scipy.stats
+
     res = scipy.stats.linregress(np.log10(centres[sel]), np.log10(dens[sel]))
     return float(res.slope), float(res.stderr)

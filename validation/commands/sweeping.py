@@ -136,7 +136,7 @@ def cmd_sweep(a: argparse.Namespace) -> int:
         raise
     print(
         f"sweep {study.name}: {rep.computed} points computed, {rep.reused} reused from {out}, "
-        f"{time.perf_counter() - t:.1f} s"
+        f"{time.perf_counter() - t:.1f} s" + (f" ({rep.schedule})" if rep.schedule else "")
     )
     for d in rep.diverged:
         times = ", ".join(f"{t:.4g}" for t in d["times_s"])
@@ -243,7 +243,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--workers",
         type=positive_int,
         default=None,
-        help="local processes (count >= 1; default: one per core)",
+        help="local processes (count >= 1; default: chosen by the work: one per core "
+        "unless the points are cheaper than starting the processes, then this process)",
     )
     p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://host:8786")
     p.add_argument(

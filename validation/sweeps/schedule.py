@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
@@ -29,6 +30,33 @@ class SweepReport:
     reused: int
     dataset_path: Path
     diverged: list[dict] = field(default_factory=list)
+    schedule: str = ""
+
+
+#: Seconds a local worker process costs before its first point: a fresh interpreter
+#: importing numpy, scipy, MuJoCo and the numba kernels took 3.5 s on a 2-core machine at
+#: load 29 (``python -c pass``: 0.16 s); 2 s is the estimate for a lightly loaded one.
+WORKER_STARTUP_S = 2.0
+
+
+def choose_workers(cores: int, point_s: float, remaining: int) -> tuple[int, str]:
+    """Worker processes for ``remaining`` points that each take about ``point_s`` s.
+
+    Processes pay off when the time they save, remaining x point_s x (1 - 1/w),
+    exceeds :data:`WORKER_STARTUP_S`; otherwise the points run in this process.
+    Returns the count and a sentence saying why.
+    """
+    w = max(1, min(cores, remaining))
+    saved = remaining * point_s * (1.0 - 1.0 / w)
+    if w > 1 and saved > WORKER_STARTUP_S:
+        return w, (
+            f"{w} worker processes: {remaining} more points of about {point_s:.2g} s "
+            f"each save {saved:.2g} s > a process start-up (~{WORKER_STARTUP_S:g} s)"
+        )
+    return 1, (
+        f"in this process: {remaining} more points of about {point_s:.2g} s each "
+        f"would save {saved:.2g} s <= a process start-up (~{WORKER_STARTUP_S:g} s)"
+    )
 
 
 def run_sweep(
@@ -45,8 +73,9 @@ def run_sweep(
 
     A study with a ``[gain]`` target first finds beta* of every point
     (:func:`validation.sweeps.gains.point_gains`, cached in ``DIR/gains``).
-    ``workers`` single-threaded processes (default: one per core; 1 runs in
-    this process), or the Dask cluster at ``scheduler``.  The directory is
+    ``workers`` single-threaded processes (1 runs in this process; default: chosen
+    by the work, :func:`choose_workers` timed on the first point, computed here), or
+    the Dask cluster at ``scheduler``; :attr:`SweepReport.schedule` says which.  The directory is
     locked for the whole sweep (:class:`validation.sweeps.store.DirectoryLock`):
     a second sweep into it fails at once naming the holder, or with
     ``wait_for_lock`` waits and then reuses the finished points.
@@ -77,6 +106,7 @@ def run_sweep(
             if on_point:
                 on_point(point)
 
+        schedule = ""
         try:
             if not todo:
                 pass
@@ -85,11 +115,26 @@ def run_sweep(
                     finished(p, r)
             elif scheduler:
                 _run_dask(scheduler, sd, todo, finished, gains)
-            elif (workers or os.cpu_count() or 1) <= 1:
-                for p in todo:
-                    finished(p, evaluate_point(sd, p, 1, gains.get(point_key(p))))
+                schedule = f"on the Dask cluster at {scheduler}"
             else:
-                _run_local(workers or os.cpu_count() or 1, sd, todo, finished, gains)
+                rest = todo
+                times: list[float] = []
+                while workers is None or (workers > 1 and len(times) == 1 and rest):
+                    # time a point here (a second one when the first, which includes
+                    # the one-off imports and kernel loads, asks for processes)
+                    t0 = time.perf_counter()
+                    p0 = rest[0]
+                    finished(p0, evaluate_point(sd, p0, 1, gains.get(point_key(p0))))
+                    times.append(time.perf_counter() - t0)
+                    rest = rest[1:]
+                    workers, schedule = choose_workers(os.cpu_count() or 1, min(times), len(rest))
+                if not times:
+                    schedule = f"{workers} worker process(es), as asked"
+                if workers <= 1:
+                    for p in rest:
+                        finished(p, evaluate_point(sd, p, 1, gains.get(point_key(p))))
+                elif rest:
+                    _run_local(workers, sd, rest, finished, gains)
         finally:
             bar.close()
         path = write_dataset(study, store)
@@ -101,7 +146,8 @@ def run_sweep(
                 diverged.append({"point": p, "realizations": [
                     r for r, t in enumerate(times) if t is not None], "times_s": [
                     t for t in times if t is not None]})  # fmt: skip
-    return SweepReport(computed=len(todo), reused=reused, dataset_path=path, diverged=diverged)
+    return SweepReport(computed=len(todo), reused=reused, dataset_path=path, diverged=diverged,
+                       schedule=schedule)  # fmt: skip
 
 
 def _run_local(workers: int, sd: dict, todo: list[dict], finished, gains: dict) -> None:
