@@ -164,7 +164,8 @@ def cmd_selftest(a: argparse.Namespace) -> int:
         from .report import jsonable
 
         eng = rigid_engine(a.engine)
-        tol = {"twin_trajectory_relative_l2": {m: eng.twin_tolerance_for(m) for m in MODEL_NAMES},
+        tol = {**{f"twin_trajectory_relative_l2.{m}": eng.twin_tolerance_for(m)
+                  for m in MODEL_NAMES},
                "twin_metric_floor": TWIN_METRIC_FLOOR,
                "rod_stretch_relative_l2": eng.rod_tolerance}  # fmt: skip
         doc = {"cipval_selftest": 1, "pass": ok, "engine": a.engine, "integrator": a.integrator,

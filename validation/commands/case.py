@@ -18,6 +18,7 @@ import numpy as np
 from cipcore.params import ParameterError
 
 from ..ci_options import add_ci_options
+from ..cli_args import nonnegative_int
 from ..exitcodes import EXIT_FAIL, EXIT_OK
 
 
@@ -96,21 +97,42 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     cs = p.add_subparsers(dest="case_command", metavar="ACTION")
     cs.required = True
-    e = cs.add_parser("export", help="write case.npz")
+    e = cs.add_parser(
+        "export", help="write case.npz",
+        description="Write a case file: the model files, the scenarios (model, realisations, "
+        "steps, dt, delay, gain, noise scale, amplitude, fields to record) and every "
+        "standard-normal draw, for an engine that runs the controller itself.",
+    )  # fmt: skip
     e.add_argument("--out", default="case.npz", metavar="FILE.npz", help="case file to write")
-    e.add_argument("--seed", type=int, default=1, help="root seed of the noise draws")
-    e.add_argument("--realizations", type=int, default=4, help="realisations (>= 2)")
+    e.add_argument("--seed", type=nonnegative_int, default=1,
+                   help="root seed of the noise draws (integer >= 0)")  # fmt: skip
+    e.add_argument("--realizations", type=int, default=4,
+                   help="realisations per scenario (count >= 2)")  # fmt: skip
     e.add_argument("--mjcf", action="append", metavar="PATH",
                    help="a user's CIP model file instead of the shipped one")  # fmt: skip
     e.set_defaults(func=cmd_export)
-    r = cs.add_parser("run", help="run a case with a registered engine (reference trajectories)")
-    r.add_argument("--case", required=True, metavar="FILE.npz")
+    r = cs.add_parser(
+        "run", help="run a case with a registered engine (reference trajectories)",
+        description="Simulate every scenario of a case file with a registered rigid-body "
+        "engine under the case's draws and write the trajectories an external engine "
+        "should reproduce.",
+    )  # fmt: skip
+    r.add_argument("--case", required=True, metavar="FILE.npz",
+                   help="case file written by `case export`")  # fmt: skip
     r.add_argument("--engine", default="mujoco", help="a registered rigid-body engine")
-    r.add_argument("--out", default="trajectories.npz", metavar="FILE.npz")
+    r.add_argument("--out", default="trajectories.npz", metavar="FILE.npz",
+                   help="trajectories file to write")  # fmt: skip
     r.set_defaults(func=cmd_run)
-    c = cs.add_parser("check", help="validate the trajectories an engine wrote")
-    c.add_argument("--case", required=True, metavar="FILE.npz")
-    c.add_argument("--trajectories", required=True, metavar="FILE.npz")
+    c = cs.add_parser(
+        "check", help="validate the trajectories an engine wrote",
+        description="Apply the run's direct checks (the exact linear twin under the case's "
+        "draws, the rod's stretch, the delay measured from the response) to the "
+        "trajectories an engine wrote: exit 0 when every check passes, 1 when one fails.",
+    )  # fmt: skip
+    c.add_argument("--case", required=True, metavar="FILE.npz",
+                   help="case file written by `case export`")  # fmt: skip
+    c.add_argument("--trajectories", required=True, metavar="FILE.npz",
+                   help="the engine's trajectories (<scenario>/<field> arrays)")  # fmt: skip
     c.add_argument("--json", action="store_true", help="one JSON object on stdout")
     add_ci_options(c, verbose=False)
     c.set_defaults(func=cmd_check)
