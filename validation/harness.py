@@ -3,6 +3,9 @@
 Stages (each seeded from the profile's seed, so a rerun gives the same numbers
 whatever the number of workers):
 
+0. the model files against the reduced model's specification
+   (:mod:`validation.conformance`) and the shared code's anchors
+   (:mod:`validation.anchors`);
 1. lambda1 of the MuJoCo and the reduced model at a few gains (agreement);
 2. time series of both engines at the paper's gains under the same noise,
    small amplitude: RMS, spectra, STCC peaks, velocity spread (agreement);
@@ -45,7 +48,8 @@ from .versions import package_versions
 
 __all__ = ["STAGES", "RunInterrupted", "compile_note", "package_versions", "run_validation"]
 
-STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan", "critical gains",
+STAGES = ("conformance and anchors", "lambda1 agreement", "time-series agreement",
+          "amplitude scan", "critical gains",
           "lambda1 curve", "RMS and velocity", "STCC and spectra", "robustness",
           "nonlinear stick", "rod-length study", "figures")  # fmt: skip
 STAGE_DIR = "stages"
@@ -156,6 +160,14 @@ def run_validation(
     state: dict[str, Any] = {}
 
     def compute(name: str) -> Any:
+        if name == "conformance and anchors":
+            from .anchors import anchor_checks
+            from .conformance import conformance_checks
+            from .profiles import PAPER_BETA
+
+            return conformance_checks(model_files, tuple(PAPER_BETA)) + anchor_checks(
+                profile.seed_for("anchors"), model_files
+            )
         if name == "lambda1 agreement":
             return agreement.lyapunov_checks(profile, workers, files=model_files)
         if name == "time-series agreement":
@@ -325,7 +337,9 @@ def _results(
         if name not in state:
             continue
         v = state[name]
-        if name in ("lambda1 agreement", "time-series agreement"):
+        if name == "conformance and anchors":
+            checks += v
+        elif name in ("lambda1 agreement", "time-series agreement"):
             checks += v[0]
         elif name == "amplitude scan":
             checks += v[0]
