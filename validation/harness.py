@@ -297,7 +297,13 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
                                 "summary": line, "events": [e.as_dict() for e in ev]})  # fmt: skip
     if "amplitude scan" in state:
         for r in state["amplitude scan"][1]:
-            if not r["small_angle"]:
+            if r.get("engine_left_regime"):
+                out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
+                            f"{r['amplitude']:g} m", "summary": "the engine left the small-angle "
+                            f"regime (largest |theta| {r['max_abs_angle']:.3g} rad) while the "
+                            f"reference stayed inside ({r['reference_max_abs_angle']:.3g} rad): "
+                            "not intended"})  # fmt: skip
+            elif not r["small_angle"]:
                 what = "fell (|theta| > pi/2)" if r["fell"] else "left the small-angle regime"
                 out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
                             f"{r['amplitude']:g} m", "summary": f"{what}: largest |theta| "
