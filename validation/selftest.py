@@ -8,6 +8,8 @@ engine with the same seed as the unmodified one.  The selftest passes when the
 unmodified model passes every check and every catalogued fault fails at least
 one.  ``--power`` also bisects each fault type's size down to the smallest that
 is still flagged (a power curve: below it the fault hides in the twin's floor).
+The file-level and shared-code paths (:mod:`validation.selftest_paths`) add
+their rows and power curves.
 """
 
 from __future__ import annotations
@@ -34,7 +36,9 @@ def run_selftest(
     seed: int = 1, n_realizations: int = 2, kinds: list[str] | None = None
 ) -> tuple[list[str], list[dict]]:
     """(checks failing on the unmodified model, one row per catalogued fault)."""
-    clean = flagged_by(None, seed, n_realizations)
+    from .selftest_paths import clean_failures, path_rows
+
+    clean = flagged_by(None, seed, n_realizations) + clean_failures(seed, n_realizations)
     rows = []
     for kind, size in CATALOGUE:
         if kinds and kind not in kinds:
@@ -46,6 +50,7 @@ def run_selftest(
             "fault": kind, "size": size, "unit": fault.unit, "description": fault.description,
             "flagged": bool(failed), "by": failed, "seconds": round(time.perf_counter() - t, 2),
         })  # fmt: skip
+    rows += path_rows(seed, n_realizations, kinds)  # model files as a user's, shared code
     return clean, rows
 
 
@@ -101,14 +106,19 @@ def cmd_selftest(a: argparse.Namespace) -> int:
 
     check_count("realizations", a.realizations)
     kinds = [k.strip() for k in a.faults.split(",")] if a.faults else None
+    from .selftest_paths import PATH_FAULT_TYPES, path_power
+
+    known = (*FAULT_TYPES, *PATH_FAULT_TYPES)
     for k in kinds or []:
-        if k not in FAULT_TYPES:
-            raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(FAULT_TYPES)}")
+        if k not in known:
+            raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(known)}")
     t = time.perf_counter()
     clean, rows = run_selftest(a.seed, a.realizations, kinds)
     power = []
     if a.power:
-        power = [smallest_detectable(r["fault"], a.seed, a.realizations) for r in rows]
+        power = [smallest_detectable(r["fault"], a.seed, a.realizations)
+                 for r in rows if "path" not in r]  # fmt: skip
+        power += path_power(rows, a.seed, a.realizations)
     ok = not clean and all(r["flagged"] for r in rows)
     if a.json:
         print(json.dumps({"pass": ok, "clean_failures": clean, "faults": rows, "power": power}))
