@@ -152,3 +152,14 @@ def test_run_seed_must_be_a_nonnegative_integer(capsys, value, tmp_path):
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--seed" in err[0] and ">= 0" in err[0]
+
+
+def test_a_run_whose_engine_leaves_the_regime_while_the_reference_stays_is_listed():
+    from validation.harness import _divergence
+
+    scan = [
+        {"model": "single", "amplitude": 1e-3, "small_angle": True, "fell": True,
+         "max_abs_angle": 3.1, "reference_max_abs_angle": 0.004, "engine_left_regime": True},
+    ]  # fmt: skip
+    (d,) = _divergence({"amplitude scan": ([], scan)})
+    assert "while the reference stayed inside" in d["summary"] and "not intended" in d["summary"]
