@@ -28,6 +28,7 @@ from pathlib import Path
 
 from cip.mjcf_params import shipped_model_path
 from cipcore.models import MODEL_NAMES
+from cipcore.params import BalanceParams
 
 from .stats import FAIL
 
@@ -314,11 +315,31 @@ def file_rows(seed: int, n_realizations: int, kinds: list[str] | None = None) ->
     return rows
 
 
+def flagged_by_conformance(fault: FileFault) -> list[str]:
+    """The ``model.conforms`` items an edited file fails (no simulation)."""
+    from .conformance import conformance_check
+    from .profiles import PAPER_BETA
+
+    with tempfile.TemporaryDirectory() as tmp:
+        checks = [
+            conformance_check(m, str(fault.write(m, Path(tmp))), BalanceParams(beta=PAPER_BETA[m]))
+            for m in fault.models
+        ]
+    return [f"{c.name} ({', '.join(k for k, v in c.values.items() if not v['ok'])})"
+            for c in checks if c.status == FAIL]  # fmt: skip
+
+
 def file_power(kind: str, seed: int, n_realizations: int, iterations: int = 10) -> dict:
     """Smallest flagged deviation of a file-fault type from the shipped file (bisection).
 
-    Geometric bisection of |size - identity| between 1e-12 and the largest
-    catalogued size; the sign of the catalogued deviation is kept.
+    Geometric bisection of |size - identity| between 1e-12 and the catalogued
+    size nearest the identity; the sign of the catalogued deviation is kept.
+    The bisection asks ``model.conforms`` only: the direct checks follow the
+    file's own twin and flag none of these types (the catalogue rows show it,
+    except ``model.declared``, which repeats the specification's 1e-12
+    equalities of gravity and dampings), so the answer is the same at a
+    fraction of the cost; ``seed`` and ``n_realizations`` are kept for the
+    selftest's signature.
     """
     spec = FILE_FAULT_TYPES[kind]
     sizes = [s for k, s in FILE_CATALOGUE if k == kind]
@@ -331,8 +352,7 @@ def file_power(kind: str, seed: int, n_realizations: int, iterations: int = 10) 
     sign = math.copysign(1.0, size - identity)
 
     def flagged(dev: float) -> bool:
-        return bool(flagged_by_file(make_file_fault(kind, identity + sign * dev), seed,
-                                    n_realizations))  # fmt: skip
+        return bool(flagged_by_conformance(make_file_fault(kind, identity + sign * dev)))
 
     hi, lo = abs(size - identity), 1e-12
     if not flagged(hi):
