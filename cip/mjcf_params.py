@@ -11,9 +11,11 @@ A user's MJCF is validated by name (the names :func:`cip.model.mjcf` writes):
 * coupled: a tendon ``rod`` between the tips held by a tendon equality ``rod``
   (solref, solimp).
 
-Read from the compiled model: the pendulum length L (tip site above the hinge),
-the masses M (cart body) and m (pendulum body, its centre of mass at the tip),
-the bob's rotational inertia, gravity, the time step and the integrator, the
+Read from the compiled model (:mod:`cip.conformance`: subtree masses and
+``mj_fullM``, whatever frames and inertia forms the file uses): the pendulum
+length L (tip site from the hinge), the masses M (cart subtree less the
+pendulum's) and m (pendulum subtree), the bob's rotational inertia about its
+centre of mass, gravity, the time step and the integrator, the
 dampings and the rod's soft-constraint constants (MuJoCo's formulas, see
 :mod:`reduced.twin`).  Anything missing or outside what the mapping covers ends
 in a one-line :class:`ParameterError` naming it.
@@ -29,6 +31,7 @@ import numpy as np
 
 from cipcore.params import ParameterError
 
+from .conformance import physical_content
 from .model import MODEL_DIR, CIPParams
 from .names import ROD, cart_damper, cart_joint, hinge_joint, motor, tip_damper, tip_site
 
@@ -176,29 +179,26 @@ def read_mapping(m: mujoco.MjModel) -> ModelMapping:
     J, S, A = mujoco.mjtObj.mjOBJ_JOINT, mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_ACTUATOR
     nc = 2 if mujoco.mj_name2id(m, J, hinge_joint(2)) >= 0 else 1
     lengths, carts, tips, inertias, g_tip, g_cart = [], [], [], [], [], []
+    content = None
     for i in range(1, nc + 1):
         jx = _id(m, J, cart_joint(i), "joint")
         jt = _id(m, J, hinge_joint(i), "joint")
-        site = _id(m, S, tip_site(i), "site")
+        _id(m, S, tip_site(i), "site")
         _id(m, A, motor(i), "actuator")
         if m.jnt_type[jx] != mujoco.mjtJoint.mjJNT_SLIDE:
             raise ParameterError(f"model file: joint x_M{i} must be a slide joint")
         if m.jnt_type[jt] != mujoco.mjtJoint.mjJNT_HINGE:
             raise ParameterError(f"model file: joint theta_{i} must be a hinge joint")
-        body = m.jnt_bodyid[jt]
-        if m.site_bodyid[site] != body:
-            raise ParameterError(f"model file: site tip_{i} must be on the body of theta_{i}")
-        arm = m.site_pos[site] - m.jnt_pos[jt]
-        L = float(np.linalg.norm(arm))
-        if not np.allclose(m.body_ipos[body], m.site_pos[site], rtol=0, atol=1e-12 * L):
-            raise ParameterError(
-                f"model file: the pendulum's centre of mass must sit at site tip_{i} "
-                "(a bob at the tip; the twin has no distributed pole mass)"
-            )
-        lengths.append(L)
-        carts.append(float(m.body_mass[m.jnt_bodyid[jx]]))
-        tips.append(float(m.body_mass[body]))
-        inertias.append(float(m.body_inertia[body][1]))
+        # read from the compiled model (subtree masses, mj_fullM), so that a bob in a
+        # welded child body, split frames or fullinertia read as what they are
+        content = content or physical_content(m, nc)
+        b = content.balancers[i - 1]
+        if not b.site_in_pendulum:
+            raise ParameterError(f"model file: site tip_{i} must be on the pendulum of theta_{i}")
+        lengths.append(b.pendulum_length)
+        carts.append(b.cart_mass)
+        tips.append(b.tip_mass)
+        inertias.append(b.bob_inertia)
         at = _id(m, A, tip_damper(i), "actuator")
         ac = _id(m, A, cart_damper(i), "actuator")
         for a, nm in ((at, tip_damper(i)), (ac, cart_damper(i))):

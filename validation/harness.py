@@ -8,6 +8,9 @@ The engine under validation is any rigid-body engine of the registry
 of MuJoCo's integrators): every engine goes through the same stages, checks
 and tolerances (its twin and twin tolerance are its own).
 
+0. the model files against the reduced model's specification
+   (:mod:`validation.conformance`) and the shared code's anchors
+   (:mod:`validation.anchors`);
 1. lambda1 of the engine and the reduced model at a few gains (agreement);
 2. time series of both engines at the paper's gains under the same noise,
    small amplitude: RMS, spectra, STCC peaks, velocity spread (agreement);
@@ -55,7 +58,8 @@ from .versions import package_versions
 __all__ = ["STAGES", "RunInterrupted", "StageCrashed", "compile_note", "package_versions",
            "run_validation"]  # fmt: skip
 
-STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan", "critical gains",
+STAGES = ("conformance and anchors", "lambda1 agreement", "time-series agreement",
+          "amplitude scan", "critical gains",
           "lambda1 curve", "RMS and velocity", "STCC and spectra", "robustness",
           "nonlinear stick", "rod-length study", "figures")  # fmt: skip
 STAGE_DIR = "stages"
@@ -110,7 +114,8 @@ def _file_digest(path: str | Path) -> str:
 
 #: the stages that run a user's model file (``--mjcf``): their saved records carry the
 #: files' content hashes and are recomputed when a file changed
-MODEL_FILE_STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan")
+MODEL_FILE_STAGES = ("conformance and anchors", "lambda1 agreement", "time-series agreement",
+                     "amplitude scan")  # fmt: skip
 
 
 def model_file_inputs(model_files: dict[str, str] | None) -> dict[str, list[str]]:
@@ -258,6 +263,14 @@ def run_validation(
     state: dict[str, Any] = {}
 
     def compute(name: str) -> Any:
+        if name == "conformance and anchors":
+            from .anchors import anchor_checks
+            from .conformance import conformance_checks
+            from .profiles import PAPER_BETA
+
+            return conformance_checks(model_files, tuple(PAPER_BETA)) + anchor_checks(
+                profile.seed_for("anchors"), model_files
+            )
         if name == "lambda1 agreement":
             return agreement.lyapunov_checks(profile, workers, **target)
         if name == "time-series agreement":
@@ -434,7 +447,13 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
                                 "summary": line, "events": [e.as_dict() for e in ev]})  # fmt: skip
     if "amplitude scan" in state:
         for r in state["amplitude scan"][1]:
-            if not r["small_angle"]:
+            if r.get("engine_left_regime"):
+                out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
+                            f"{r['amplitude']:g} m", "summary": "the engine left the small-angle "
+                            f"regime (largest |theta| {r['max_abs_angle']:.3g} rad) while the "
+                            f"reference stayed inside ({r['reference_max_abs_angle']:.3g} rad): "
+                            "not intended"})  # fmt: skip
+            elif not r["small_angle"]:
                 what = "fell (|theta| > pi/2)" if r["fell"] else "left the small-angle regime"
                 out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
                             f"{r['amplitude']:g} m", "summary": f"{what}: largest |theta| "
@@ -479,7 +498,9 @@ def _results(
         if name not in state:
             continue
         v = state[name]
-        if name in ("lambda1 agreement", "time-series agreement"):
+        if name == "conformance and anchors":
+            checks += v
+        elif name in ("lambda1 agreement", "time-series agreement"):
             checks += v[0]
         elif name == "amplitude scan":
             checks += v[0]

@@ -227,10 +227,13 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
                          f"{_fmt(v.get('baseline'))} | {change} | {c.tolerance} |")  # fmt: skip
     lines += paper_section(results)
     lines += ["", "## Amplitude scan (full vs reduced, same noise)", "",
-              "| model | initial error (m) | largest abs theta (rad) | rel. L2 | trajectory | RMS "
-              "| spectrum |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+              "| model | initial error (m) | largest abs theta (rad) | reference's (rad) | "
+              "rel. L2 | trajectory | RMS | spectrum |",
+              "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for r in results["amplitude_scan"]:
-        lines.append(f"| {r['model']} | {r['amplitude']:g} | {r['max_abs_angle']:.3g} | "
+        ref = _fmt(r.get("reference_max_abs_angle"))
+        ref += " (engine left the regime)" if r.get("engine_left_regime") else ""
+        lines.append(f"| {r['model']} | {r['amplitude']:g} | {r['max_abs_angle']:.3g} | {ref} | "
                      f"{r['relative_l2']:.3g} | {r['trajectory']} | {r['log10_rms']} | "
                      f"{r['spectrum_bands']} |")  # fmt: skip
     if results.get("rod_length"):

@@ -8,6 +8,8 @@ engine with the same seed as the unmodified one.  The selftest passes when the
 unmodified model passes every check and every catalogued fault fails at least
 one.  ``--power`` also bisects each fault type's size down to the smallest that
 is still flagged (a power curve: below it the fault hides in the twin's floor).
+The file-level and shared-code paths (:mod:`validation.selftest_paths`) add
+their rows and power curves.
 """
 
 from __future__ import annotations
@@ -51,10 +53,15 @@ def run_selftest(
 
     A fault that cannot exist in ``engine`` (a rod softness change in a rigid rod,
     an integrator change in an engine with its own stepper) is listed as not
-    applicable with the reason, and is not counted.
+    applicable with the reason, and is not counted.  The model-file and
+    shared-code faults (:mod:`validation.selftest_paths`) follow the catalogue.
     """
+    from .selftest_paths import clean_failures, path_rows
+
     eng = rigid_engine(engine)
-    clean = flagged_by(None, seed, n_realizations, engine, integrator)
+    clean = flagged_by(None, seed, n_realizations, engine, integrator) + clean_failures(
+        seed, n_realizations
+    )
     rows = []
     for kind, size in CATALOGUE:
         if kinds and kind not in kinds:
@@ -69,6 +76,7 @@ def run_selftest(
         failed = flagged_by(fault, seed, n_realizations, engine, integrator)
         rows.append({**row, "flagged": bool(failed), "by": failed,
                      "seconds": round(time.perf_counter() - t, 2)})  # fmt: skip
+    rows += path_rows(seed, n_realizations, kinds)  # model files as a user's, shared code
     return clean, rows
 
 
@@ -144,16 +152,21 @@ def cmd_selftest(a: argparse.Namespace) -> int:
         a.junit = check_out_file("--junit", a.junit, (".xml",))
     check_engine_options(a)
     kinds = [k.strip() for k in a.faults.split(",")] if a.faults else None
+    from .selftest_paths import PATH_FAULT_TYPES, path_power
+
+    known = (*FAULT_TYPES, *PATH_FAULT_TYPES)
     for k in kinds or []:
-        if k not in FAULT_TYPES:
-            raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(FAULT_TYPES)}")
+        if k not in known:
+            raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(known)}")
     t = time.perf_counter()
     clean, rows = run_selftest(a.seed, a.realizations, kinds, a.engine, a.integrator)
     rows_run = [r for r in rows if r["flagged"] is not None]
     power = []
     if a.power:
         power = [smallest_detectable(r["fault"], a.seed, a.realizations, engine=a.engine,
-                                     integrator=a.integrator) for r in rows_run]  # fmt: skip
+                                     integrator=a.integrator)
+                 for r in rows_run if "path" not in r]  # fmt: skip
+        power += path_power(rows, a.seed, a.realizations)
     ok = not clean and all(r["flagged"] for r in rows_run)
     if a.junit:
         from .junit import selftest_cases, write_junit

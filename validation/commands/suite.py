@@ -18,6 +18,7 @@ from ..cli_args import (
     check_out_file,
     interrupt_signals,
     interrupted_status,
+    nonnegative_int,
     positive_int,
 )
 from ..divergence import group_lines
@@ -67,6 +68,19 @@ def cmd_run(a: argparse.Namespace) -> int:
             f"--baseline: {a.baseline!r} was made with profile {baseline.get('profile')!r}, "
             f"this run uses {a.profile!r}"
         )
+    profile = PROFILES[a.profile]
+    if a.seed is not None:
+        from dataclasses import replace
+
+        profile = replace(profile, seed=a.seed)
+    if (
+        baseline is not None
+        and baseline.get("settings", {}).get("seed", profile.seed) != profile.seed
+    ):
+        raise ParameterError(
+            f"--baseline: {a.baseline!r} was made with seed {baseline['settings']['seed']}, "
+            f"this run uses --seed {profile.seed}"
+        )
     files = model_files(a.mjcf)  # a bad model file is refused before any work
     check_engine_options(a)
     if baseline is not None:
@@ -97,7 +111,7 @@ def cmd_run(a: argparse.Namespace) -> int:
     with interrupt_signals() as got:
         try:
             results = run_validation(
-                PROFILES[a.profile],
+                profile,
                 out,
                 workers=a.workers,
                 progress=progress_enabled(a.quiet),
@@ -254,6 +268,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     add_engine_options(p)
+    p.add_argument(
+        "--seed",
+        type=nonnegative_int,
+        default=None,
+        help="root seed of every stage (integer >= 0; default: the profile's, 2011)",
+    )
     p.set_defaults(func=cmd_run)
 
     p = sub.add_parser(
