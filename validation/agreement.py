@@ -382,7 +382,7 @@ def series_checks(
         )  # fmt: skip
         full, red = run_pair(*args)
         twin = run_twin(*args)
-        env = run_envelope_twin(*args[:-1], fields=SERIES_FIELDS)
+        env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS)
         mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
         mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
         mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
@@ -452,7 +452,7 @@ def amplitude_scan(
             )  # fmt: skip
             full, red = run_pair(*args)
             twin = run_twin(*args)
-            env = run_envelope_twin(*args[:-1], fields=("balancing_error",))
+            env = run_envelope_twin(*args[:8], fields=("balancing_error",))
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
             et, ee = twin["balancing_error"], env["balancing_error"]
             rel = trajectory_distance(full, red)
