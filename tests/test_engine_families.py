@@ -22,7 +22,7 @@ from cip.simulate import simulate_full
 from cipcore import registry
 from cipcore.params import BalanceParams
 from cipcore.registry import availability, get_engine
-from validation.engines import EngineProfile, validate_engine
+from validation.agreement import instrument_checks
 from validation.faults import Fault, make_fault
 from validation.stats import FAIL
 
@@ -104,23 +104,19 @@ def test_a_fault_at_the_engine_boundary_moves_the_engine_as_it_moves_mujoco(
     assert ref / 1.5 < moved < 1.5 * ref, f"{name} {kind}: moved {moved:.3e}, MuJoCo {ref:.3e}"
 
 
-#: The cross-engine checks at a size a test can afford (1 s trajectories).
-TINY = EngineProfile(
-    "tiny", 1.0, 2, {"single": (20.306,), "coupled": (21.0,)}, 1.0, 2, (1e-6, 1e-1), 0.5, 2, 0.1
-)
-
-
 @pytest.mark.parametrize("name", FAMILIES)
-def test_one_step_delay_error_fails_the_engines_trajectory_check(name, monkeypatch) -> None:
+def test_one_step_delay_error_fails_the_run_checks(name, monkeypatch) -> None:
+    """A one-step-late delay in the engine fails the direct checks that `run --engine` and
+    `engines` apply (the delay measured from the response, and the twin)."""
     engine = _engine(name)
     late = faulty_backend(engine.backend(), make_fault("delay_late", 1))
     faulty = dataclasses.replace(engine, name=f"{name}-late", backend=lambda: late)
     monkeypatch.setattr(sys.modules[__name__], "FAULTY", faulty, raising=False)
     monkeypatch.setitem(registry.ENGINES, faulty.name, f"{__name__}:FAULTY")
-    row = validate_engine(faulty.name, TINY, seed=0, threads=1)
-    dist = row["trajectory_distance"]
-    assert row["checks"]["trajectory"] == FAIL, f"{name} one step late passed: {dist}"
-    assert row["status"] == FAIL
+    checks = {c.name: c for c in instrument_checks(1, 2, engine=faulty.name, models=("single",))}
+    delay = checks["delay.single"]
+    assert delay.status == FAIL and delay.values["measured_steps"] == 101, delay
+    assert checks["twin.trajectory.single"].status == FAIL
 
 
 def test_exudyn_state_map_round_trips() -> None:

@@ -11,7 +11,7 @@ from cipcore.registry import engine_names
 
 from .ci_options import add_ci_options, run_environment
 from .cli_args import add_threads_arg, check_out_dir, check_out_file, nonnegative_int
-from .engine_options import INTEGRATORS
+from .engine_options import INTEGRATORS, add_engine_cmd_arg, register_engine_cmd
 from .profiles import PROFILES
 
 EXIT_OK, EXIT_FAIL = 0, 1
@@ -20,7 +20,6 @@ EXIT_OK, EXIT_FAIL = 0, 1
 def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError
 
-    from .commands.contract import register_engine_cmd
     from .engines import compare_engines, parse_engines, write_engine_reports
 
     cmd_engine = register_engine_cmd(a.engine_cmd)
@@ -134,7 +133,5 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     add_ci_options(p, verbose=False)
-    from .commands.contract import add_engine_cmd_arg
-
     add_engine_cmd_arg(p)
     p.set_defaults(func=cmd_engines)

@@ -18,14 +18,39 @@ from cipcore.registry import check_engine_name, engine_names
 INTEGRATORS = ("Euler", "implicit", "implicitfast", "RK4")
 
 
+#: The registry name of the engine given by ``--engine-cmd``.
+COMMAND_ENGINE = "command"
+
+
+def add_engine_cmd_arg(p: argparse.ArgumentParser) -> None:
+    """Add ``--engine-cmd "CMD ARGS"`` (the chunk exchange protocol, :mod:`cip.process`)."""
+    p.add_argument(
+        "--engine-cmd", metavar='"CMD ARGS"',
+        help="an engine in another program, driven over stdin/stdout by the chunk exchange "
+        f"protocol (README: Engines in other programs); registered as {COMMAND_ENGINE!r}",
+    )  # fmt: skip
+
+
+def register_engine_cmd(command: str | None) -> str | None:
+    """Register ``--engine-cmd``'s engine; its registry name, or None without one."""
+    if command is None:
+        return None
+    from cip.process import process_engine
+    from cipcore.registry import register_engine
+
+    register_engine(COMMAND_ENGINE, process_engine(command, COMMAND_ENGINE))
+    return COMMAND_ENGINE
+
+
 def add_engine_options(p: argparse.ArgumentParser) -> None:
-    """Add ``--engine`` and ``--integrator`` to a command's parser."""
+    """Add ``--engine``, ``--engine-cmd`` and ``--integrator`` to a command's parser."""
     p.add_argument(
         "--engine",
-        default="mujoco",
+        default=None,
         metavar="NAME",
         help=f"the rigid-body engine to validate ({', '.join(engine_names())}; default mujoco)",
     )
+    add_engine_cmd_arg(p)
     p.add_argument(
         "--integrator",
         default=None,
@@ -36,8 +61,22 @@ def add_engine_options(p: argparse.ArgumentParser) -> None:
 
 
 def check_engine_options(a: argparse.Namespace) -> None:
-    """Refuse, in one line, an unknown or unavailable engine or an integrator it cannot run."""
+    """Refuse, in one line, an unknown or unavailable engine or an integrator it cannot run.
+
+    ``--engine-cmd`` registers the external engine and names it in ``a.engine``;
+    without either option the engine is MuJoCo.
+    """
     from .agreement import rigid_engine
+
+    command = getattr(a, "engine_cmd", None)
+    if command is not None:
+        if a.engine is not None:
+            raise ParameterError(
+                "--engine and --engine-cmd both name the engine to validate; give one"
+            )
+        a.engine = register_engine_cmd(command)
+    elif a.engine is None:
+        a.engine = "mujoco"
 
     check_engine_name(a.engine)
     eng = rigid_engine(a.engine)  # availability and rigid body, one line each

@@ -11,30 +11,10 @@ import time
 from cipcore.params import ParameterError
 
 from ..ci_options import add_ci_options
+from ..engine_options import add_engine_cmd_arg, register_engine_cmd
 from ..exitcodes import EXIT_CRASH, EXIT_FAIL, EXIT_OK
 
 #: the registry name of the ``--engine-cmd`` engine
-COMMAND_ENGINE = "command"
-
-
-def add_engine_cmd_arg(p: argparse.ArgumentParser) -> None:
-    """Add ``--engine-cmd "CMD ARGS"`` (the chunk exchange protocol, :mod:`cip.process`)."""
-    p.add_argument(
-        "--engine-cmd", metavar='"CMD ARGS"',
-        help="an engine in another program, driven over stdin/stdout by the chunk exchange "
-        f"protocol (README: Engines in other programs); registered as {COMMAND_ENGINE!r}",
-    )  # fmt: skip
-
-
-def register_engine_cmd(command: str | None) -> str | None:
-    """Register ``--engine-cmd``'s engine; its registry name, or None without one."""
-    if command is None:
-        return None
-    from cip.process import process_engine
-    from cipcore.registry import register_engine
-
-    register_engine(COMMAND_ENGINE, process_engine(command, COMMAND_ENGINE))
-    return COMMAND_ENGINE
 
 
 def cmd_contract(a: argparse.Namespace) -> int:

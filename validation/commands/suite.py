@@ -82,6 +82,11 @@ def cmd_run(a: argparse.Namespace) -> int:
             f"this run uses --seed {profile.seed}"
         )
     files = model_files(a.mjcf)  # a bad model file is refused before any work
+    if a.resume and getattr(a, "engine_cmd", None) is not None:
+        raise ParameterError(
+            "--resume with --engine-cmd: the finished stages cannot be tied to an external "
+            "program's build; rerun without --resume"
+        )
     check_engine_options(a)
     if baseline is not None:
         made = baseline.get("engine") or {}  # baselines without the record are MuJoCo's
