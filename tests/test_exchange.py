@@ -59,3 +59,32 @@ def test_engines_command_validates_an_engine_cmd(tmp_path, capsys):
     assert rows["command"]["trajectory_distance"] == rows["mujoco"]["trajectory_distance"]
     suites = {s.get("name") for s in ET.parse(junit).getroot().iter("testsuite")}
     assert suites == {"engines.reduced", "engines.mujoco", "engines.command"}
+
+
+def test_run_checks_pass_for_the_example_and_fail_with_a_one_step_delay_error():
+    """`run --engine-cmd` validates the program through the run's direct checks (its exact
+    twin, the delay measured from its response, the rod): the example passes them, the
+    same program one step late fails the twin and measures 101 steps."""
+    import argparse
+
+    from validation.agreement import instrument_checks
+    from validation.engine_options import check_engine_options
+
+    for command, good in ((CMD, True), (f"{CMD} --delay-error", False)):
+        a = argparse.Namespace(engine=None, engine_cmd=command, integrator=None)
+        check_engine_options(a)
+        checks = {c.name: c for c in instrument_checks(1, 2, engine=a.engine)}
+        for name in ("twin.trajectory.single", "delay.single", "twin.trajectory.coupled"):
+            assert (checks[name].status == "pass") is good, (command, checks[name])
+        if not good:
+            assert checks["delay.single"].values["measured_steps"] == 101
+
+
+def test_run_refuses_engine_and_engine_cmd_together_and_a_resume(capsys, tmp_path):
+    out = str(tmp_path / "o")
+    assert main(["run", "--engine", "mujoco", "--engine-cmd", CMD, "--out", out]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--engine-cmd" in err[0]
+    assert main(["run", "--engine-cmd", CMD, "--resume", "--out", out]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--resume" in err[0]

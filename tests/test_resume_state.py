@@ -26,6 +26,8 @@ def counted(monkeypatch):
 
         return compute
 
+    monkeypatch.setattr(harness, "conformance_and_anchors", stand_in("conformance and anchors"))
+    monkeypatch.setattr(harness, "_engine_record", lambda *a, **k: {})
     monkeypatch.setattr(harness.agreement, "lyapunov_checks", stand_in("lambda1 agreement"))
     monkeypatch.setattr(harness.agreement, "series_checks", stand_in("time-series agreement"))
     monkeypatch.setattr(harness.agreement, "amplitude_scan", stand_in("amplitude scan"))
@@ -81,7 +83,7 @@ def test_damaged_manifest_is_a_stated_recompute_of_every_stage(counted, tmp_path
 def test_damaged_stage_record_is_a_stated_recompute_of_that_stage(counted, tmp_path, capsys):
     out = tmp_path / "out"
     _run(out, resume=False)
-    rec = next((out / "stages").glob("3-*.pkl"))
+    rec = next((out / "stages").glob(f"{STAGES.index('critical gains')}-*.pkl"))
     rec.write_bytes(rec.read_bytes()[:5])
     capsys.readouterr()
     _run(out)

@@ -184,6 +184,11 @@ def tolerance_limit(c: dict) -> dict | None:
         return {"on": "z", "limit": 2.0}
     if "expected_steps" in v:
         return {"on": "measured_steps - expected_steps", "limit": 0.0}
+    if isinstance(v.get("tolerance"), int | float):  # the check carries its own bound
+        on = "value - paper" if "paper" in v else "difference" if "difference" in v else "value"
+        return {"on": on, "limit": float(v["tolerance"])}
+    if c.get("tolerance", "").startswith("equal to the paper's literal values"):
+        return {"on": "value - paper", "limit": 0.0}
     text = c.get("tolerance", "")
     m = re.search(r"to (\d[\d.]*e[-+]?\d+) relative", text)
     if m:

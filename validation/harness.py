@@ -226,6 +226,17 @@ def _atomic(path: Path, data: bytes) -> None:
     write_bytes(path, data)
 
 
+def conformance_and_anchors(profile: Profile, model_files: dict[str, str] | None) -> list:
+    """The first stage: the model files against the reduced model's specification
+    (:mod:`validation.conformance`) and the shared code's anchors (:mod:`validation.anchors`)."""
+    from .anchors import anchor_checks
+    from .conformance import conformance_checks
+
+    return conformance_checks(model_files, tuple(PAPER_BETA)) + anchor_checks(
+        profile.seed_for("anchors"), model_files
+    )
+
+
 def run_validation(
     profile: Profile, out_dir: Path, workers: int | None = None, progress: bool = True,
     figures: bool = True, resume: bool = False,
@@ -264,13 +275,7 @@ def run_validation(
 
     def compute(name: str) -> Any:
         if name == "conformance and anchors":
-            from .anchors import anchor_checks
-            from .conformance import conformance_checks
-            from .profiles import PAPER_BETA
-
-            return conformance_checks(model_files, tuple(PAPER_BETA)) + anchor_checks(
-                profile.seed_for("anchors"), model_files
-            )
+            return conformance_and_anchors(profile, model_files)
         if name == "lambda1 agreement":
             return agreement.lyapunov_checks(profile, workers, **target)
         if name == "time-series agreement":
