@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 
@@ -39,27 +40,10 @@ def cmd_engines(a: argparse.Namespace) -> int:
     quiet = a.json or a.quiet
     say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
     try:
-        if a.json:  # an engine's import banner (warp's) must not corrupt the JSON on stdout
-            with stdout_to_stderr():
-                results = compare_engines(
-                    names,
-                    a.profile,
-                    a.seed,
-                    a.threads,
-                    progress=say,
-                    integrator=a.integrator,
-                    selftest=a.selftest,
-                )
-        else:
-            results = compare_engines(
-                names,
-                a.profile,
-                a.seed,
-                a.threads,
-                progress=say,
-                integrator=a.integrator,
-                selftest=a.selftest,
-            )
+        # an engine's import banner (warp's) must not corrupt the JSON on stdout
+        with stdout_to_stderr() if a.json else contextlib.nullcontext():
+            results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
+                                      integrator=a.integrator, selftest=a.selftest)  # fmt: skip
     except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
         from .exitcodes import EXIT_CRASH
 
