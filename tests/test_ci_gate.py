@@ -82,6 +82,7 @@ def test_exit_3_when_a_regression_number_moves_grouped_with_relative_change(
     canned, tmp_path, capsys
 ):
     base = json.loads(BASELINE.read_text())
+    base.pop("fingerprint", None)  # a baseline made before fingerprints: compared at round-off
     for c in base["checks"]:
         if c["name"] == "paper.beta_star.single":
             c["values"]["value"] *= 1.01
