@@ -3,12 +3,15 @@
 Every row names the system the paper makes the claim about (the linear model
 of section 3, or the human experiment of section 4), the section and the
 equation / figure / table label, the paper's value, ours with a 95 % interval,
-the estimator, and a status: ``reproduced``, ``not reproduced``,
-``inconclusive`` or ``not a check`` (with the reason: a claim about
-the human experiment, one noise draw, or a number that depends on an
-unstated initial condition).  Only the critical gains are verdicts of the
-run (within their confidence tolerance plus the paper's printed precision,
-:func:`beta_star_tolerance`); the other rows are reported as measured.
+the estimator, and a status by the rules :data:`VERDICT_RULE` and
+:data:`ROBUSTNESS_RULE` state (a ratio claim: "direction and magnitude
+reproduced", "direction reproduced; magnitude not", "not reproduced",
+"direction inconclusive; magnitude not" or "inconclusive"), or ``not a
+check`` (with the reason: a claim about the human experiment, one noise
+draw, or a number that depends on an unstated initial condition).  Only the
+critical gains are verdicts of the run (within their confidence tolerance plus
+the paper's printed precision, :func:`beta_star_tolerance`); the other rows are
+reported as measured.
 
 All statistics read float64 series: the balancing error of the linear models
 at the paper's operating point is a random walk in log |e| spanning more

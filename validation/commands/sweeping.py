@@ -148,15 +148,21 @@ def cmd_sweep(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _dataset_path(text: str) -> Path:
+    """``DIR/sweep.nc`` for a sweep directory, else the file itself; one line if absent."""
+    path = Path(text)
+    if path.is_dir():
+        path = path / "sweep.nc"
+    if not path.is_file():
+        raise ParameterError(f"dataset: no sweep dataset at {text!r}")
+    return path
+
+
 def cmd_sweep_plot(a: argparse.Namespace) -> int:
     from ..sweeps import plot_metric
     from ..sweeps.store import read_dataset
 
-    path = Path(a.dataset)
-    if path.is_dir():
-        path = path / "sweep.nc"
-    if not path.is_file():
-        raise ParameterError(f"dataset: no sweep dataset at {a.dataset!r}")
+    path = _dataset_path(a.dataset)
     png = check_out_file("--out", a.out or f"{a.metric}_vs_{a.x}.png", (".png", ".pdf", ".svg"))
     png = plot_metric(read_dataset(path), a.metric, a.x, png)
     print(png)
@@ -165,25 +171,18 @@ def cmd_sweep_plot(a: argparse.Namespace) -> int:
 
 def cmd_sweep_export(a: argparse.Namespace) -> int:
     """One CSV row per grid point and realisation; columns ``name [units]``."""
-    import xarray as xr
+    from cipcore.atomic import write_text
 
-    path = Path(a.dataset)
-    if path.is_dir():
-        path = path / "sweep.nc"
-    if not path.is_file():
-        raise ParameterError(f"dataset: no sweep dataset at {a.dataset!r}")
+    from ..sweeps.store import read_dataset
+
+    path = _dataset_path(a.dataset)
     csv = check_out_file("--csv", a.csv, (".csv",))
-    try:
-        ds_file = xr.open_dataset(path, engine="scipy")
-    except (OSError, ValueError, TypeError) as exc:
-        raise ParameterError(f"dataset: {str(path)!r} is not a sweep dataset ({exc})") from None
-    with ds_file as ds:
-        ds = ds.load()
+    ds = read_dataset(path)  # checked against its content hash
     df = ds.to_dataframe().reset_index()
     names = {**{c: ds[c].attrs for c in ds.coords}, **{v: ds[v].attrs for v in ds.data_vars}}
     df.columns = [f"{c} [{names[c]['units']}]" if names.get(c, {}).get("units") else c
                   for c in df.columns]  # fmt: skip
-    df.to_csv(csv, index=False)
+    write_text(csv, df.to_csv(index=False))
     print(csv)
     return EXIT_OK
 
