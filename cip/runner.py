@@ -26,6 +26,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from cipcore.control_law import delayed_random_gain
 from cipcore.models import get_model
 from cipcore.params import BalanceParams, ParameterError
 
@@ -195,7 +196,7 @@ class CIPRunner:
             c = self.controller
             u = M * (c.kp * self.e_hist[:, :n] + c.kd * self.edot_hist[:, :n])
         else:
-            u = (M * p.beta) * (1.0 + p.noise_scale * xi) * self.e_hist[:, :n]
+            u = delayed_random_gain(M * p.beta, p.noise_scale, xi, self.e_hist[:, :n])
         ctrl[:, :, self.i_u] = u
         out = np.empty((self.n_realizations, n, self.nstate))
         self.backend(self.state, np.ascontiguousarray(ctrl), out)

@@ -40,6 +40,8 @@ import warp as wp
 wp.config.quiet = True  # before mujoco_warp initialises warp: no banner
 import mujoco_warp as mjw  # noqa: E402
 
+from cipcore.control_warp import delayed_random_gain  # noqa: E402
+
 from .names import cart_joint, hinge_joint, motor  # noqa: E402
 
 wp.init()
@@ -72,7 +74,7 @@ def _delayed_gain_control(
         e = length[w] * wp.sin(th)
         e_delayed = hist[w, c, slot]
         hist[w, c, slot] = e
-        ctrl[w, u_idx[c]] = gain[w] * (f32(1.0) + scale[w] * xi[w, k, c]) * e_delayed
+        ctrl[w, u_idx[c]] = delayed_random_gain(gain[w], scale[w], xi[w, k, c], e_delayed)
         a = wp.abs(th)
         if step[0] + k == 0:  # the largest angle after steps 1.., as the CPU driver records
             continue

@@ -12,6 +12,9 @@ params          reduced-model parameters (alpha, beta, gamma, nu, tau, dt),
 models          the balancing models as values (single, coupled, ...)
 noise           the random feedback gain R = 1 + nu xi / sqrt(dt), one seeded
                 stream per realisation
+control_law     the delayed random-gain control u = beta R e(t - tau), eq. (5)
+control_kernel  the law, the delay ring and the recording rule for numba kernels
+control_warp    the law as a warp function (warp engines only)
 seeds           the seed namespace: noise streams and every other random use
 schema          the shared time-series schema (:class:`Trajectory`) and
                 recording checks

@@ -12,7 +12,8 @@ and for C = 2 the first line is the paper's 2 q_T'' + 2 gamma q_T' = alpha (e_1 
 The delay is a ring buffer ``hist[r, i, :]`` of the last d = tau/dt values of
 e_i.  At step n the slot ``p`` holds e_i at step n - d; it is read, then
 overwritten with e_i at step n.  The random gain over step n is
-R_{i,n} = 1 + noise_scale * xi[r, n, i], noise_scale = nu / sqrt(dt).
+R_{i,n} = 1 + noise_scale * xi[r, n, i], noise_scale = nu / sqrt(dt).  The law,
+the ring and the recording rule are :mod:`cipcore.control_kernel`'s, inlined.
 
 Steppers (``semi_implicit``):
   * True: semi-implicit Euler as in MuJoCo's ``Euler`` integrator,
@@ -26,6 +27,14 @@ import math
 
 import numpy as np
 from numba import njit
+
+from cipcore.control_kernel import (
+    delayed_random_gain,
+    first_sample,
+    ring_exchange,
+    ring_next,
+    sample_slot,
+)
 
 
 @njit(cache=True, nogil=True)
@@ -63,7 +72,7 @@ def advance_positions(
     """
     nb, n, nc = xi.shape
     d = hist.shape[2]
-    rec_start = (n0 + every - 1) // every
+    rec_start = first_sample(n0, every)
     nrec = rec.shape[1]
     p_out = pos
     for r in range(nb):
@@ -71,24 +80,21 @@ def advance_positions(
         v_t = state[r, 1]
         p = pos
         for k in range(n):
-            nk = n0 + k
-            if nk % every == 0:
-                j = nk // every - rec_start
-                if j < nrec:
-                    for i in range(nc):
-                        rec[r, j, i, 0] = q_t
-                        rec[r, j, i, 1] = v_t
-                        rec[r, j, i, 2] = state[r, 2 + 2 * i]
-                        rec[r, j, i, 3] = state[r, 3 + 2 * i]
+            j = sample_slot(n0 + k, every, rec_start, nrec)
+            if j >= 0:
+                for i in range(nc):
+                    rec[r, j, i, 0] = q_t
+                    rec[r, j, i, 1] = v_t
+                    rec[r, j, i, 2] = state[r, 2 + 2 * i]
+                    rec[r, j, i, 3] = state[r, 3 + 2 * i]
             esum = 0.0
             for i in range(nc):
                 q_m = state[r, 2 + 2 * i]
                 v_m = state[r, 3 + 2 * i]
                 e = q_t - q_m
                 esum += e
-                e_delayed = hist[r, i, p]
-                hist[r, i, p] = e
-                a_m = -gamma * v_m + beta * (1.0 + noise_scale * xi[r, k, i]) * e_delayed
+                e_delayed = ring_exchange(hist[r, i], p, e)
+                a_m = -gamma * v_m + delayed_random_gain(beta, noise_scale, xi[r, k, i], e_delayed)
                 if semi_implicit:
                     v_m = v_m + dt * a_m
                     q_m = q_m + dt * v_m
@@ -104,9 +110,7 @@ def advance_positions(
             else:
                 q_t = q_t + dt * v_t
                 v_t = v_t + dt * a_t
-            p += 1
-            if p == d:
-                p = 0
+            p = ring_next(p, d)
         state[r, 0] = q_t
         state[r, 1] = v_t
         p_out = p
@@ -157,12 +161,11 @@ def advance_errors(
             for i in range(nc):
                 e = y[r, 2 * i]
                 v = y[r, 2 * i + 1]
-                e_delayed = hist[r, i, p]
-                hist[r, i, p] = e
+                e_delayed = ring_exchange(hist[r, i], p, e)
                 a = (
                     -gamma * v
                     + alpha * esum / nc
-                    - beta * (1.0 + noise_scale * xi[r, k, i]) * e_delayed
+                    - delayed_random_gain(beta, noise_scale, xi[r, k, i], e_delayed)
                 )
                 if semi_implicit:
                     v = v + dt * a
@@ -172,9 +175,7 @@ def advance_errors(
                     v = v + dt * a
                 y[r, 2 * i] = e
                 y[r, 2 * i + 1] = v
-            p += 1
-            if p == d:
-                p = 0
+            p = ring_next(p, d)
             nk = n0 + k + 1
             if nk % renorm_every == 0:
                 s = 0.0

@@ -6,8 +6,9 @@ with R_n = 1 + noise_scale * xi[r, n, 0] held over step n, and an optional
 additive noise floor sigma eta(t), held over the step as floor_scale *
 xi[r, n, 1] (floor_scale = sigma / sqrt(dt), Euler–Maruyama).  The delay is a
 ring buffer of the last d = tau/dt angles, read then overwritten at each step,
-exactly as in the linear kernel, so for |theta| << 1 and sigma = 0 the map is
-the linear single model's map for its balancing error (eq. (2)).
+exactly as in the linear kernel (both use :mod:`cipcore.control_kernel`), so
+for |theta| << 1 and sigma = 0 the map is the linear single model's map for its
+balancing error (eq. (2)).
 """
 
 from __future__ import annotations
@@ -16,6 +17,14 @@ import math
 
 import numpy as np
 from numba import njit
+
+from cipcore.control_kernel import (
+    delayed_random_gain,
+    first_sample,
+    ring_exchange,
+    ring_next,
+    sample_slot,
+)
 
 
 @njit(cache=True, nogil=True)
@@ -44,7 +53,7 @@ def advance_angle(
     """
     nb, n, _ = xi.shape
     d = hist.shape[1]
-    rec_start = (n0 + every - 1) // every
+    rec_start = first_sample(n0, every)
     nrec = rec.shape[1]
     p_out = pos
     for r in range(nb):
@@ -52,18 +61,15 @@ def advance_angle(
         om = state[r, 1]
         p = pos
         for k in range(n):
-            nk = n0 + k
-            if nk % every == 0:
-                j = nk // every - rec_start
-                if j < nrec:
-                    rec[r, j, 0] = th
-                    rec[r, j, 1] = om
-            th_delayed = hist[r, p]
-            hist[r, p] = th
+            j = sample_slot(n0 + k, every, rec_start, nrec)
+            if j >= 0:
+                rec[r, j, 0] = th
+                rec[r, j, 1] = om
+            th_delayed = ring_exchange(hist[r], p, th)
             a = (
                 -gamma * om
                 + alpha * math.sin(th)
-                - beta * (1.0 + noise_scale * xi[r, k, 0]) * th_delayed
+                - delayed_random_gain(beta, noise_scale, xi[r, k, 0], th_delayed)
                 + floor_scale * xi[r, k, 1]
             )
             if semi_implicit:
@@ -72,9 +78,7 @@ def advance_angle(
             else:
                 th = th + dt * om
                 om = om + dt * a
-            p += 1
-            if p == d:
-                p = 0
+            p = ring_next(p, d)
         state[r, 0] = th
         state[r, 1] = om
         p_out = p

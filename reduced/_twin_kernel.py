@@ -23,6 +23,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cipcore.control_kernel import (
+    delayed_random_gain,
+    first_sample,
+    ring_exchange,
+    ring_next,
+    sample_slot,
+)
+
 
 @njit(cache=True, nogil=True)
 def _accelerations(
@@ -145,7 +153,7 @@ def advance_twin(
     nb, n, nc = xi.shape
     d = hist.shape[2]
     beta, s_noise, h = coef[4], coef[5], coef[6]
-    rec_start = (n0 + every - 1) // every
+    rec_start = first_sample(n0, every)
     nrec = rec.shape[1]
     ax = np.empty(nc)
     ae = np.empty(nc)
@@ -154,19 +162,16 @@ def advance_twin(
     for r in range(nb):
         p = pos
         for k in range(n):
-            nk = n0 + k
-            if nk % every == 0:
-                j = nk // every - rec_start
-                if j < nrec:
-                    for i in range(nc):
-                        rec[r, j, i, 0] = state[r, i, 0] + state[r, i, 1]
-                        rec[r, j, i, 1] = state[r, i, 2] + state[r, i, 3]
-                        rec[r, j, i, 2] = state[r, i, 0]
-                        rec[r, j, i, 3] = state[r, i, 2]
+            j = sample_slot(n0 + k, every, rec_start, nrec)
+            if j >= 0:
+                for i in range(nc):
+                    rec[r, j, i, 0] = state[r, i, 0] + state[r, i, 1]
+                    rec[r, j, i, 1] = state[r, i, 2] + state[r, i, 3]
+                    rec[r, j, i, 2] = state[r, i, 0]
+                    rec[r, j, i, 3] = state[r, i, 2]
             for i in range(nc):
-                e_delayed = hist[r, i, p]
-                hist[r, i, p] = state[r, i, 1]
-                u[i] = beta * (1.0 + s_noise * xi[r, k, i]) * e_delayed
+                e_delayed = ring_exchange(hist[r, i], p, state[r, i, 1])
+                u[i] = delayed_random_gain(beta, s_noise, xi[r, k, i], e_delayed)
             if scheme == 2:
                 _rk4_step(state[r], u, coef, minv, h)
             else:
@@ -178,8 +183,6 @@ def advance_twin(
                     state[r, i, 3] = w
                     state[r, i, 0] = state[r, i, 0] + h * v
                     state[r, i, 1] = state[r, i, 1] + h * w
-            p += 1
-            if p == d:
-                p = 0
+            p = ring_next(p, d)
         p_out = p
     return p_out

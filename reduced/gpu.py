@@ -55,6 +55,8 @@ def _kernel():
         return _KERNEL["k"]
     import warp as wp
 
+    from cipcore.control_warp import delayed_random_gain
+
     wp.config.quiet = True
     wp.init()
     f64 = wp.float64
@@ -85,7 +87,6 @@ def _kernel():
         q_t = state[r, 0]
         v_t = state[r, 1]
         p = pos
-        one = f64(1.0)
         for k in range(n):
             nk = n0 + k
             if nk % every == 0:
@@ -104,7 +105,7 @@ def _kernel():
                 esum = esum + e
                 e_delayed = hist[r, i, p]
                 hist[r, i, p] = e
-                a_m = -gamma * v_m + beta * (one + noise_scale * xi[r, k, i]) * e_delayed
+                a_m = -gamma * v_m + delayed_random_gain(beta, noise_scale, xi[r, k, i], e_delayed)
                 if semi_implicit != 0:
                     v_m = v_m + dt * a_m
                     q_m = q_m + dt * v_m
