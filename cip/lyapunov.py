@@ -75,7 +75,7 @@ def lyapunov_full(
     (the initial deviation differs: here it is a random small tilt).
     ``epsilon`` (m) is the deviation size kept by renormalisation: small
     enough for the linear regime (theta ~ epsilon / L).  ``mj_model``: a
-    compiled model file to run instead of the generator's MJCF (as in
+    compiled model file to run instead of :func:`cip.model.build`'s (as in
     :func:`cip.simulate.simulate_full`).
     """
     nc = get_model(model).n_controllers

@@ -1,4 +1,4 @@
-"""The full rigid-body CIP as MJCF: physical parameters, mapping, generator.
+"""The full rigid-body CIP as MJCF: physical parameters, mapping, the shipped files edited.
 
 Each balancer is a cart of mass M on a world slide joint ``x_M<i>`` carrying a
 massless pole of length L on a hinge ``theta_<i>`` with a bob of mass m at its
@@ -43,7 +43,16 @@ from cipcore.atomic import write_text
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
 
+from .names import ROD, cart_body, cart_damper, pendulum_body, tip_damper, tip_site
+
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
+#: MuJoCo's enum of each integrator name (``<option integrator=...>``)
+INTEGRATOR_ENUMS = {
+    "Euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "RK4": mujoco.mjtIntegrator.mjINT_RK4,
+}
 MODEL_DIR = Path(__file__).resolve().parent.parent / "models"
 
 
@@ -164,11 +173,6 @@ class CIPParams:
         return d
 
 
-def _f(x: float) -> str:
-    """Shortest round-trip text of a float (stable across platforms)."""
-    return repr(float(x))
-
-
 def bob_rotational_inertia(p: CIPParams) -> float:
     """Rotational inertia of the bob about its centre, 2/5 m r^2 (kg m^2).
 
@@ -178,132 +182,90 @@ def bob_rotational_inertia(p: CIPParams) -> float:
     return 0.4 * p.bob_mass * p.bob_radius**2 + 1e-12
 
 
-def mjcf(model: str, p: CIPParams | None = None) -> str:
-    """MJCF text of the single or coupled CIP for physical parameters ``p``.
+def shipped_file(model: str) -> Path:
+    """The shipped MJCF ``models/cip_<model>.xml``: the CIP at the default :class:`CIPParams`."""
+    return MODEL_DIR / f"cip_{get_model(model).name}.xml"
 
-    Names follow the paper: joints ``x_M<i>`` (cart) and ``theta_<i>``, sites
-    ``tip_<i>`` and ``base_<i>``, motors ``u_<i>``, the tendon and equality
-    ``rod``; sensors are named after the shared schema's fields.
+
+def model_spec(model: str, p: CIPParams | None = None) -> mujoco.MjSpec:
+    """The shipped model file of ``model`` edited to physical parameters ``p`` (``mujoco.MjSpec``).
+
+    The file (:func:`shipped_file`) holds the structure: bodies, joints, sites,
+    actuators, sensors, rod and looks; names follow the paper (:mod:`cip.names`):
+    joints ``x_M<i>`` (cart) and ``theta_<i>``, sites ``tip_<i>`` and
+    ``base_<i>``, motors ``u_<i>``, the tendon and equality ``rod``; sensors are
+    named after the shared schema's fields.  Set here from ``p``: time step,
+    integrator and gravity; the cart positions (the rod length l apart) and
+    masses M; the pendulum's inertial (bob mass m at L, rotational inertia
+    :func:`bob_rotational_inertia`); the pole (capsule from the hinge to L), the
+    drawn bob and the tip site at L; the damping actuators' bias -gamma m and
+    -gamma M (N s/m); the rod's solref and solimp; the floor's half-length.
+    Compiling the result equals compiling the former generated text of the same
+    parameters field for field (every ``MjModel`` array and option, checked for
+    non-default parameters and all four integrators).
     """
     nc = get_model(model).n_controllers
     p = p or CIPParams()
+    spec = mujoco.MjSpec.from_file(str(shipped_file(model)))
     L, m, M = p.pendulum_length, p.tip_mass, p.cart_mass
-    bob_inertia = bob_rotational_inertia(p)
-    xs = [0.0] if nc == 1 else [0.5 * p.rod_length, -0.5 * p.rod_length]
+    inertia = bob_rotational_inertia(p)
+    spec.option.timestep = p.timestep
+    spec.option.integrator = INTEGRATOR_ENUMS[p.integrator]
+    spec.option.gravity = [0.0, 0.0, -p.gravity]
     span = max(3.0, p.rod_length + 2.0)
-    bodies = []
+    for name in ("floor", "rail"):
+        spec.geom(name).size[0] = span
+    xs = [0.0] if nc == 1 else [0.5 * p.rod_length, -0.5 * p.rod_length]
     for i, x0 in enumerate(xs, start=1):
-        bodies.append(f"""\
-    <body name="cart_{i}" pos="{_f(x0)} 0 0">
-      <joint name="x_M{i}" type="slide" axis="1 0 0"/>
-      <inertial pos="0 0 0" mass="{_f(M)}" diaginertia="0.001 0.001 0.001"/>
-      <geom name="cart_{i}" type="box" size="0.08 0.05 0.025" material="cart"/>
-      <site name="base_{i}" pos="0 0 0" size="0.01"/>
-      <body name="pendulum_{i}" pos="0 0 0">
-        <joint name="theta_{i}" type="hinge" axis="0 1 0"/>
-        <inertial pos="0 0 {_f(L)}" mass="{_f(m)}" diaginertia="{_f(bob_inertia)} \
-{_f(bob_inertia)} {_f(bob_inertia)}"/>
-        <geom name="pole_{i}" type="capsule" fromto="0 0 0 0 0 {_f(L)}" size="0.006" \
-material="pole"/>
-        <geom name="bob_{i}" type="sphere" pos="0 0 {_f(L)}" size="{_f(p.bob_visual_radius)}" \
-material="bob"/>
-        <site name="tip_{i}" pos="0 0 {_f(L)}" size="0.005"/>
-      </body>
-    </body>""")
-    actuators, sensors = [], []
-    for i in range(1, nc + 1):
-        actuators.append(f'    <motor name="u_{i}" joint="x_M{i}" gear="1"/>')
-    for i in range(1, nc + 1):
-        actuators.append(
-            f'    <general name="tip_damping_{i}" site="tip_{i}" refsite="origin" '
-            f'gear="1 0 0 0 0 0" gainprm="0" biastype="affine" '
-            f'biasprm="0 0 {_f(-p.tip_damping * m)}"/>'
-        )
-        actuators.append(
-            f'    <general name="cart_damping_{i}" joint="x_M{i}" gainprm="0" '
-            f'biastype="affine" biasprm="0 0 {_f(-p.cart_damping * M)}"/>'
-        )
-        sensors += [
-            f'    <jointpos name="base_position_{i}" joint="x_M{i}"/>',
-            f'    <jointvel name="base_velocity_{i}" joint="x_M{i}"/>',
-            f'    <jointpos name="angle_{i}" joint="theta_{i}"/>',
-            f'    <framepos name="tip_position_{i}" objtype="site" objname="tip_{i}"/>',
-            f'    <framelinvel name="tip_velocity_{i}" objtype="site" objname="tip_{i}"/>',
-        ]
-    rod = ""
+        cart = spec.body(cart_body(i))
+        cart.pos = [x0, 0.0, 0.0]
+        cart.mass = M
+        pendulum = spec.body(pendulum_body(i))
+        pendulum.ipos = [0.0, 0.0, L]
+        pendulum.mass = m
+        pendulum.inertia = [inertia, inertia, inertia]
+        spec.geom(f"pole_{i}").fromto = [0.0, 0.0, 0.0, 0.0, 0.0, L]
+        bob = spec.geom(f"bob_{i}")
+        bob.pos = [0.0, 0.0, L]
+        bob.size[0] = p.bob_visual_radius
+        spec.site(tip_site(i)).pos = [0.0, 0.0, L]
+        spec.actuator(tip_damper(i)).biasprm[2] = -p.tip_damping * m
+        spec.actuator(cart_damper(i)).biasprm[2] = -p.cart_damping * M
     if nc == 2:
-        sensors.append('    <tendonpos name="rod_length" tendon="rod"/>')
-        rod = f"""
-  <tendon>
-    <spatial name="rod" width="0.008" material="rod">
-      <site site="tip_1"/>
-      <site site="tip_2"/>
-    </spatial>
-  </tendon>
+        rod = spec.equality(ROD)
+        rod.solref = list(p.solref)
+        rod.solimp[:3] = p.solimp
+    return spec
 
-  <equality>
-    <tendon name="rod" tendon1="rod" polycoef="0 1 0 0 0" \
-solref="{_f(p.solref[0])} {_f(p.solref[1])}" \
-solimp="{_f(p.solimp[0])} {_f(p.solimp[1])} {_f(p.solimp[2])}"/>
-  </equality>
-"""
-    title = "single cart-pendulum" if nc == 1 else "coupled inverted pendula (CIP)"
-    return f"""\
-<!-- {title}: generated by cip.model.mjcf; edit the generator, not this file -->
-<mujoco model="cip_{model}">
-  <compiler angle="radian" autolimits="true"/>
 
-  <option timestep="{_f(p.timestep)}" integrator="{p.integrator}" \
-gravity="0 0 {_f(-p.gravity)}" tolerance="1e-12" iterations="50">
-    <flag contact="disable"/>
-  </option>
+def mjcf(model: str, p: CIPParams | None = None) -> str:
+    """MJCF text of the single or coupled CIP for physical parameters ``p``.
 
-  <visual>
-    <global azimuth="90" elevation="-10"/>
-  </visual>
-
-  <asset>
-    <texture name="grid" type="2d" builtin="checker" rgb1=".2 .3 .4" rgb2=".1 .2 .3" \
-width="300" height="300"/>
-    <material name="grid" texture="grid" texrepeat="8 8" reflectance=".2"/>
-    <material name="cart" rgba=".6 .6 .65 1"/>
-    <material name="pole" rgba=".85 .6 .3 1"/>
-    <material name="bob" rgba=".8 .2 .2 1"/>
-    <material name="rod" rgba=".2 .6 .9 1"/>
-    <material name="rail" rgba=".3 .3 .3 1"/>
-  </asset>
-
-  <worldbody>
-    <light pos="0 -2 3" dir="0 1 -1"/>
-    <geom name="floor" type="plane" pos="0 0 -0.05" size="{_f(span)} 1 0.1" material="grid"/>
-    <geom name="rail" type="box" pos="0 0 -0.03" size="{_f(span)} 0.01 0.005" material="rail"/>
-    <site name="origin" pos="0 0 0" size="0.005"/>
-{chr(10).join(bodies)}
-  </worldbody>
-{rod}
-  <actuator>
-{chr(10).join(actuators)}
-  </actuator>
-
-  <sensor>
-{chr(10).join(sensors)}
-  </sensor>
-</mujoco>
-"""
+    At the default parameters (``p`` None or ``CIPParams()``) the shipped file
+    verbatim.  Otherwise MuJoCo's XML of :func:`model_spec`
+    (``MjSpec.to_xml``), which writes numbers to 6 significant digits
+    (MuJoCo 4.0): it compiles to a model that differs from :func:`build`'s in
+    the rounded parameters, so simulate with :func:`build` and read the text
+    only.
+    """
+    if p is None or p == CIPParams():
+        return shipped_file(model).read_text()
+    return model_spec(model, p).to_xml()
 
 
 def build(model: str, p: CIPParams | None = None) -> mujoco.MjModel:
-    """Compile the MJCF of :func:`mjcf` into an ``MjModel``."""
-    return mujoco.MjModel.from_xml_string(mjcf(model, p))
+    """Compile the CIP of :func:`model_spec` into an ``MjModel``."""
+    return model_spec(model, p).compile()
 
 
 def write_models(directory: Path = MODEL_DIR) -> list[Path]:
-    """Write ``cip_single.xml`` and ``cip_coupled.xml`` at the default parameters."""
+    """Copy ``cip_single.xml`` and ``cip_coupled.xml`` (the shipped files) into ``directory``."""
     directory.mkdir(parents=True, exist_ok=True)
     out = []
     for model in MODEL_NAMES:
         path = directory / f"cip_{model}.xml"
-        write_text(path, mjcf(model))
+        if path.resolve() != shipped_file(model).resolve():
+            write_text(path, mjcf(model))
         out.append(path)
     return out
 

@@ -132,7 +132,7 @@ class CIPRunner:
                 f"amplitude must be an initial balancing error |e| < L = {L:.4g} m, "
                 f"got {amplitude!r}"
             )
-        # a compiled model file (cip.mjcf_params) or the generator's MJCF of ``physical``
+        # a compiled model file (cip.mjcf_params) or the shipped file edited to ``physical``
         self.m = mj_model if mj_model is not None else build(model, physical)
         self.L = L
         self.d = params.delay_steps

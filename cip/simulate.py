@@ -71,7 +71,7 @@ def simulate_full(
     :meth:`CIPParams.from_reduced` of ``params`` (L = g/alpha, m/M = 1e-3).
     ``backend`` steps the rigid body (default :class:`cip.runner.MujocoRollout`,
     MuJoCo on the CPU); ``engine_name`` is recorded in ``attrs["engine"]``;
-    ``mj_model`` a compiled model file to run instead of the generator's MJCF
+    ``mj_model`` a compiled model file to run instead of :func:`cip.model.build`'s
     (``physical`` must then describe it, see :func:`cip.mjcf_params.read_mapping`).
     """
     nc = get_model(model).n_controllers

@@ -8,7 +8,8 @@ import pytest
 
 from cip.linearize import linearize, transition_check
 from cip.lyapunov import lyapunov_full
-from cip.model import MODEL_DIR, CIPParams, build, mjcf
+from cip.mjcf_params import read_mapping
+from cip.model import MODEL_DIR, CIPParams, bob_rotational_inertia, build, mjcf
 from cip.runner import CIPRunner
 from cip.simulate import DivergenceWarning, simulate_full
 from reduced import (
@@ -24,10 +25,12 @@ P = BalanceParams(beta=20.306)
 
 
 @pytest.mark.parametrize("model", ["single", "coupled"])
-def test_model_files_equal_generator_output(model):
+def test_model_files_hold_the_default_parameters(model):
+    """The shipped file compiles to build()'s model at CIPParams() defaults, array for array."""
     path = MODEL_DIR / f"cip_{model}.xml"
-    assert path.read_text() == mjcf(model), "regenerate with cip.model.write_models()"
+    assert path.read_text() == mjcf(model)
     m = mujoco.MjModel.from_xml_path(str(path))
+    assert model_arrays_differ(m, build(model)) == []
     nc = 1 if model == "single" else 2
     assert m.nq == m.nv == 2 * nc
     for i in range(1, nc + 1):
@@ -41,6 +44,41 @@ def test_model_files_equal_generator_output(model):
             assert mujoco.mj_name2id(m, obj, name) >= 0, name
     if nc == 2:
         assert m.neq == 1 and m.ntendon == 1
+
+
+def model_arrays_differ(a: mujoco.MjModel, b: mujoco.MjModel) -> list[str]:
+    """Names of the MjModel arrays and options in which two compiled models differ."""
+    out = []
+    for obj, prefix in ((a, ""), (a.opt, "opt.")):
+        other = b if obj is a else b.opt
+        for name in (n for n in dir(obj) if not n.startswith("_")):
+            x = getattr(obj, name)
+            if isinstance(x, np.ndarray | int | float) and not callable(x):
+                y = getattr(other, name)
+                if np.shape(x) != np.shape(y) or not np.array_equal(x, y, equal_nan=True):
+                    out.append(prefix + name)
+    return out
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_edited_parameters_read_back(model):
+    """build() edits every physical parameter of the shipped file (read back by the mapping)."""
+    p = CIPParams(pendulum_length=0.37, bob_mass=3.3e-3, cart_mass=1.7, tip_damping=13.1,
+                  cart_damping=7.7, rod_length=2.345, rod_mass=0.1, bob_radius=0.0213,
+                  solref=(0.0031, 0.77), solimp=(0.95, 0.97, 0.0021), timestep=7e-4,
+                  integrator="RK4", gravity=9.7)  # fmt: skip
+    mp = read_mapping(build(model, p))
+    names = ("gravity", "pendulum_length", "tip_mass", "cart_mass", "tip_damping",
+             "cart_damping", "timestep")  # fmt: skip
+    got = {n: getattr(mp, n) for n in names} | {"bob_inertia": mp.bob_inertia}
+    want = {n: getattr(p, n) for n in names} | {"bob_inertia": bob_rotational_inertia(p)}
+    for name, value in want.items():
+        assert got[name] == pytest.approx(value, rel=1e-12), name
+    assert mp.integrator == p.integrator
+    if model == "coupled":
+        assert mp.solref == p.solref and mp.solimp == p.solimp
+        m = build(model, p)
+        assert m.body("cart_1").pos[0] - m.body("cart_2").pos[0] == pytest.approx(p.rod_length)
 
 
 def test_masses_and_lengths_as_specified():
@@ -104,7 +142,7 @@ def test_rod_holds_its_length():
 
 
 def test_tip_velocities_equal_in_the_small_angle_regime():
-    """Paper eq. (dqT): q_T1' = q_T2'.  In the rigid body it holds to second order in
+    """Paper eq. (4): q_T1' = q_T2'.  In the rigid body it holds to second order in
     the angles (tips at unequal heights tilt the rod) plus the soft constraint's lag, a
     linear, amplitude-independent floor (measured 1.2e-5 relative RMS)."""
     tiny, _ = _tip_velocity_mismatch(1e-4)
