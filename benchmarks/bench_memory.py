@@ -1,4 +1,4 @@
-"""Peak memory of the paper's workload with the reduced model (issue 2).
+"""Peak memory of the paper's workload with the reduced model.
 
 100 realisations x 1200 s at dt = 1 ms (1.2e8 realisation-steps per model) of
 the coupled model, recording the balancing errors of both controllers in

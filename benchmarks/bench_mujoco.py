@@ -1,4 +1,4 @@
-"""Delayed random-gain MuJoCo CIP vs the engine's own speed (issue 3).
+"""Delayed random-gain MuJoCo CIP vs the engine's own speed.
 
 In one run, for the coupled CIP (default 128 realisations, paper parameters):
   * engine: ``mujoco.rollout`` of the same model with precomputed controls

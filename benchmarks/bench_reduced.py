@@ -1,4 +1,4 @@
-"""Reduced coupled model in Lyapunov mode vs the cost of its Gaussian draws (issue 2).
+"""Reduced coupled model in Lyapunov mode vs the cost of its Gaussian draws.
 
 Prints realisation-steps per second of ``reduced.lyapunov`` (coupled, paper
 parameters) and of drawing the same number of standard normals with the same

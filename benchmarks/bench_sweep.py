@@ -1,4 +1,4 @@
-"""Sweep throughput: 1 and 2 workers, local process pool and a local Dask cluster (issue 5).
+"""Sweep throughput: 1 and 2 workers, local process pool and a local Dask cluster.
 
 One run, the same study (coupled MuJoCo CIP, 8 grid points); prints grid points
 per second for each configuration.  Worker start-up is counted (a fresh pool or

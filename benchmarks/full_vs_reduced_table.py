@@ -1,4 +1,4 @@
-"""Full (MuJoCo) vs reduced model under the same noise: relative L2 table (issue 3).
+"""Full (MuJoCo) vs reduced model under the same noise: relative L2 table.
 
 Paper parameters, beta = 20.306, 10 s, 4 realisations, seed 1; the relative L2
 distance of the balancing errors for initial amplitudes x mass ratios m/M,

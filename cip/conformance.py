@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from .names import ROD, cart_joint, hinge_joint, tip_site
+
 J, S, A, B = (
     mujoco.mjtObj.mjOBJ_JOINT,
     mujoco.mjtObj.mjOBJ_SITE,
@@ -83,9 +85,9 @@ def _descends(m: mujoco.MjModel, body: int, ancestor: int) -> bool:
 
 
 def _balancer(m: mujoco.MjModel, d: mujoco.MjData, qm: np.ndarray, i: int) -> Balancer:
-    jx = mujoco.mj_name2id(m, J, f"x_M{i}")
-    jt = mujoco.mj_name2id(m, J, f"theta_{i}")
-    site = mujoco.mj_name2id(m, S, f"tip_{i}")
+    jx = mujoco.mj_name2id(m, J, cart_joint(i))
+    jt = mujoco.mj_name2id(m, J, hinge_joint(i))
+    site = mujoco.mj_name2id(m, S, tip_site(i))
     pend, cart = int(m.jnt_bodyid[jt]), int(m.jnt_bodyid[jx])
     mass = float(m.body_subtreemass[pend])
     anchor, axis = d.xanchor[jt], d.xaxis[jt] / np.linalg.norm(d.xaxis[jt])
@@ -173,7 +175,7 @@ def physical_content(m: mujoco.MjModel, n_controllers: int) -> Content:
         }
     others = []
     rod = None
-    eq_rod = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, "rod")
+    eq_rod = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_EQUALITY, ROD)
     for e in range(m.neq):
         if e == eq_rod:
             continue
@@ -182,7 +184,7 @@ def physical_content(m: mujoco.MjModel, n_controllers: int) -> Content:
         )
         if active:
             others.append(_name(m, mujoco.mjtObj.mjOBJ_EQUALITY, e))
-    ten = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, "rod")
+    ten = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TENDON, ROD)
     if ten >= 0:
         rod = {
             "stiffness": float(np.max(np.abs(m.tendon_stiffness[ten]))),

@@ -99,7 +99,7 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
     while mujoco.mj_name2id(m, _OBJ.mjOBJ_JOINT, cart_joint(nc + 1)) >= 0:
         nc += 1
     if nc == 0:
-        raise ParameterError("the MuJoCo model has no cart joint x_M1: not a CIP model")
+        raise ParameterError(f"the MuJoCo model has no cart joint {cart_joint(1)}: not a CIP model")
     rows: dict[str, list] = {k: [] for k in CIPGeometry.__dataclass_fields__}
     for i in range(1, nc + 1):
         jx = _id(m, _OBJ.mjOBJ_JOINT, cart_joint(i))

@@ -161,9 +161,10 @@ def _id(m: mujoco.MjModel, kind: mujoco.mjtObj, name: str, what: str) -> int:
     i = mujoco.mj_name2id(m, kind, name)
     if i < 0:
         raise ParameterError(
-            f"model file has no {what} {name!r} (the CIP mapping needs joints x_M<i>, "
-            "theta_<i>, sites tip_<i>, motors u_<i>, actuators tip_damping_<i>, "
-            "cart_damping_<i>, and for two balancers a tendon and equality 'rod')"
+            f"model file has no {what} {name!r} (the CIP mapping needs joints "
+            f"{cart_joint('<i>')}, {hinge_joint('<i>')}, sites {tip_site('<i>')}, motors "
+            f"{motor('<i>')}, actuators {tip_damper('<i>')}, {cart_damper('<i>')}, and for "
+            f"two balancers a tendon and equality {ROD!r})"
         )
     return i
 
@@ -186,15 +187,17 @@ def read_mapping(m: mujoco.MjModel) -> ModelMapping:
         _id(m, S, tip_site(i), "site")
         _id(m, A, motor(i), "actuator")
         if m.jnt_type[jx] != mujoco.mjtJoint.mjJNT_SLIDE:
-            raise ParameterError(f"model file: joint x_M{i} must be a slide joint")
+            raise ParameterError(f"model file: joint {cart_joint(i)} must be a slide joint")
         if m.jnt_type[jt] != mujoco.mjtJoint.mjJNT_HINGE:
-            raise ParameterError(f"model file: joint theta_{i} must be a hinge joint")
+            raise ParameterError(f"model file: joint {hinge_joint(i)} must be a hinge joint")
         # read from the compiled model (subtree masses, mj_fullM), so that a bob in a
         # welded child body, split frames or fullinertia read as what they are
         content = content or physical_content(m, nc)
         b = content.balancers[i - 1]
         if not b.site_in_pendulum:
-            raise ParameterError(f"model file: site tip_{i} must be on the pendulum of theta_{i}")
+            raise ParameterError(
+                f"model file: site {tip_site(i)} must be on the pendulum of {hinge_joint(i)}"
+            )
         lengths.append(b.pendulum_length)
         carts.append(b.cart_mass)
         tips.append(b.tip_mass)

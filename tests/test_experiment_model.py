@@ -42,7 +42,7 @@ def test_frame_map_equals_twenty_semi_implicit_substeps():
 
 
 def test_coupled_tip_follows_the_mean_of_the_two_lower_ends():
-    """2 q_T'' + 2 gamma q_T' = alpha (Dq_1 + Dq_2) (eq. sss08:TM)."""
+    """2 q_T'' + 2 gamma q_T' = alpha (Dq_1 + Dq_2) (eq. (5))."""
     s = TaskSettings(mode="coupled")
     a, b = ReducedTask(s), ReducedTask(TaskSettings(mode="single"))
     a.advance(np.array([-0.7, 0.1]))

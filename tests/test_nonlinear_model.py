@@ -1,4 +1,4 @@
-"""The nonlinear stick, eq. (cabrera): linear limit, saturation, seeds and threads."""
+"""The nonlinear stick, eq. (1): linear limit, saturation, seeds and threads."""
 
 from __future__ import annotations
 

@@ -98,7 +98,7 @@ def test_noise_uses_euler_maruyama_scaling():
 
 
 def test_coupled_reduces_to_single_when_errors_equal():
-    """Paper: eq. (sss08:TMc) coincides with (bormann04) if e1 = e2 (same noise in both)."""
+    """Paper: eq. (6) coincides with eq. (2) if e1 = e2 (same noise in both)."""
     p = BalanceParams(beta=20.306)
     xi1 = GainNoise(7, 2, 1).draws(5000)
     single = simulate("single", p, 5.0, noise=ArrayNoise(xi1), amplitude=0.01)

@@ -137,6 +137,7 @@ def full_boundary(model: str, mj_model, pendulum_length: float, cart_mass: float
     import mujoco
 
     from cip.linearize import qacc_jacobians
+    from cip.names import cart_joint, hinge_joint, motor
 
     a, b = qacc_jacobians(mj_model)
     nv = mj_model.nv
@@ -144,9 +145,9 @@ def full_boundary(model: str, mj_model, pendulum_length: float, cart_mass: float
     k = np.zeros((mj_model.nu, 2 * nv))
     trans = np.zeros(nv)
     for i in range(1, nc + 1):
-        jt = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_JOINT, f"theta_{i}")
-        jx = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_JOINT, f"x_M{i}")
-        act = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_ACTUATOR, f"u_{i}")
+        jt = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_JOINT, hinge_joint(i))
+        jx = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_JOINT, cart_joint(i))
+        act = mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_ACTUATOR, motor(i))
         k[act, mj_model.jnt_dofadr[jt]] = cart_mass * pendulum_length
         trans[mj_model.jnt_dofadr[jx]] = 1.0
     # positions orthogonal to the common translation, all velocities

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cip.names import cart_joint, hinge_joint
 from cipcore.atomic import atomic_path, write_with
 from cipcore.params import ParameterError
 from cipcore.schema import Trajectory
@@ -63,8 +64,8 @@ def render_frames(
     mj_model.vis.headlight.diffuse[:] = 0.7
     n_c = positions.shape[1]
     adr = [
-        (mj_model.joint(f"x_M{i + 1}").qposadr[0], mj_model.joint(f"theta_{i + 1}").qposadr[0])
-        for i in range(n_c)
+        (mj_model.joint(cart_joint(i)).qposadr[0], mj_model.joint(hinge_joint(i)).qposadr[0])
+        for i in range(1, n_c + 1)
     ]
     try:
         renderer = mujoco.Renderer(mj_model, height, width)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cip.mjcf_params import shipped_model_path
+from cip.names import ROD, cart_joint, every_balancer, pendulum_body, tip_damper
 from cipcore.models import MODEL_NAMES
 from cipcore.params import BalanceParams
 
@@ -67,15 +68,14 @@ def _fmt(values: list[float]) -> str:
 
 
 def _pendulum_inertials(root: ET.Element) -> list[ET.Element]:
-    return [
-        b.find("inertial") for b in root.iter("body") if b.get("name", "").startswith("pendulum_")
-    ]
+    pendulums = every_balancer(pendulum_body)
+    return [b.find("inertial") for b in root.iter("body") if b.get("name", "") in pendulums]
 
 
 def _rod_attr(attr: str, index: int, factor: float | None = None, value: float | None = None):
     def edit(root):
         for eq in root.iter("tendon"):
-            if eq.get("name") == "rod" and eq.get(attr) is not None:
+            if eq.get("name") == ROD and eq.get(attr) is not None:
                 v = _floats(eq.get(attr))
                 v[index] = v[index] * factor if factor is not None else value
                 eq.set(attr, _fmt(v))
@@ -88,16 +88,16 @@ def _solimp(dmin: float) -> XmlEdit:
 
     def edit(root):
         for eq in root.iter("tendon"):
-            if eq.get("name") == "rod" and eq.get("solimp") is not None:
+            if eq.get("name") == ROD and eq.get("solimp") is not None:
                 eq.set("solimp", _fmt([dmin, dmin + (0.99 - dmin) / 2, 0.001]))
 
     return edit
 
 
-def _damping(name: str, factor: float) -> Callable[[ET.Element], None]:
+def _damping(name_of: Callable[[int], str], factor: float) -> XmlEdit:
     def edit(root):
         for g in root.iter("general"):
-            if g.get("name", "").startswith(name):
+            if g.get("name", "") in every_balancer(name_of):
                 v = _floats(g.get("biasprm"))
                 v[2] *= factor
                 g.set("biasprm", _fmt(v))
@@ -113,7 +113,7 @@ def _mass_ratio(factor: float) -> XmlEdit:
         for i in _pendulum_inertials(root):
             i.set("mass", repr(float(i.get("mass")) * factor))
             i.set("diaginertia", _fmt([v * factor for v in _floats(i.get("diaginertia"))]))
-        _damping("tip_damping", factor)(root)
+        _damping(tip_damper, factor)(root)
 
     return edit
 
@@ -130,7 +130,7 @@ def _kappa(kappa: float) -> XmlEdit:
 def _slide_range(half: float) -> XmlEdit:
     def edit(root):
         for j in root.iter("joint"):
-            if j.get("name", "").startswith("x_M"):
+            if j.get("name", "") in every_balancer(cart_joint):
                 j.set("range", _fmt([-half, half]))
                 j.set("limited", "true")
 
@@ -185,7 +185,7 @@ FILE_FAULT_TYPES: dict[str, dict] = {
     },
     "file_tip_damping": {
         "build": lambda s: _f("file_tip_damping", s, "relative", "tip damping gamma (1 + s)",
-                              _damping("tip_damping", 1 + s)),
+                              _damping(tip_damper, 1 + s)),
     },
 }  # fmt: skip
 
@@ -217,7 +217,7 @@ def _bob_in_welded_child(root: ET.Element) -> None:
     """The pendulum body keeps the hinge; the bob's mass moves to a child body at the tip."""
     _explicit_inertia(root)
     for b in list(root.iter("body")):
-        if not b.get("name", "").startswith("pendulum_"):
+        if b.get("name", "") not in every_balancer(pendulum_body):
             continue
         i = b.find("inertial")
         b.remove(i)
@@ -230,7 +230,7 @@ def _split_frames(root: ET.Element) -> None:
     """The pendulum split in two welded frames at half its length, the bob in the upper."""
     _explicit_inertia(root)
     for b in list(root.iter("body")):
-        if not b.get("name", "").startswith("pendulum_"):
+        if b.get("name", "") not in every_balancer(pendulum_body):
             continue
         i = b.find("inertial")
         L = _floats(i.get("pos"))[2]

@@ -17,7 +17,7 @@ import numpy as np
 def power_spectrum(
     x: np.ndarray, dt: float, segment: float = 20.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One-sided power spectral density of each realisation (paper Fig. pwsp).
+    """One-sided power spectral density of each realisation (paper Fig. 5).
 
     Welch's estimator (``scipy.signal.welch``): Hann window, segments of
     ``segment`` seconds (default 20 s: resolution 0.05 Hz), 50 % overlap,
@@ -36,7 +36,7 @@ def power_spectrum(
 
 @dataclass
 class PowerLawFit:
-    """Two power laws S ~ f^slope_low below f_c and f^slope_high above (Fig. pwsp).
+    """Two power laws S ~ f^slope_low below f_c and f^slope_high above (Fig. 5).
 
     Uncertainties are bootstrap standard deviations over realisations.
     """
@@ -90,7 +90,7 @@ def fit_two_power_laws(
     n_bootstrap: int = 200,
     seed: int = 0,
 ) -> PowerLawFit:
-    """Fit two power laws to the realisation-mean spectrum (paper Fig. pwsp).
+    """Fit two power laws to the realisation-mean spectrum (paper Fig. 5).
 
     log10 S averaged over realisations and over ``n_bins`` log-spaced bins in
     [fmin, fmax] Hz is fitted by a continuous broken line; the slopes are the
@@ -140,7 +140,7 @@ def relative_l2(a: np.ndarray, b: np.ndarray, axis: int | None = None) -> np.nda
 
 
 def rms(x: np.ndarray, axis: int = -1) -> np.ndarray:
-    """Root mean square over time of each realisation (paper Fig. rms)."""
+    """Root mean square over time of each realisation (paper Fig. 6)."""
     x = np.asarray(x, dtype=float)
     return np.sqrt(np.mean(x * x, axis=axis))
 
@@ -158,7 +158,7 @@ def density(v: np.ndarray, edges: np.ndarray) -> np.ndarray:
 def velocity_density_ratio(
     v_coupled: np.ndarray, v_single: np.ndarray, edges: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Ratio p(dq1/dt) / p(dx/dt) of velocity-error densities (paper Fig. velo).
+    """Ratio p(dq1/dt) / p(dx/dt) of velocity-error densities (paper Fig. 7).
 
     Both densities are histogram estimates on the same ``edges`` (m/s), each
     normalised by all its samples (:func:`density`); returns bin centres and
@@ -233,7 +233,7 @@ def density_ratio_near_zero(
     n_bootstrap: int = 1000,
     seed: int = 0,
 ) -> DensityRatio:
-    """Ratio of velocity-error densities in the bin [-h, h] around 0 (paper Fig. velo).
+    """Ratio of velocity-error densities in the bin [-h, h] around 0 (paper Fig. 7).
 
     Each density is (samples with |v| < h) / (ALL samples x 2h), so the ratio is
     the ratio of the fractions of samples within h of 0.  h = ``half_width``
@@ -537,7 +537,7 @@ def stcc_significance_bartlett(
 
 
 def peak_density(tau_hat: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Density of tau_hat over time and realisations (paper Fig. sccpeak:pdf).
+    """Density of tau_hat over time and realisations (paper Fig. 10).
 
     Returns the density on ``edges`` (NaNs, i.e. windows without a dominant
     peak, excluded), the height of its maximum (1/s) and its location (s).

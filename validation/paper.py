@@ -79,7 +79,7 @@ def critical_gains(profile: Profile, threads: int | None):
         except ParameterError as exc:  # the target was not crossed: a failed check, not a crash
             failed.append(Check(name=f"paper.beta_star.{model}", status=FAIL,
                                 values={"paper": PAPER_BETA[model]},
-                                tolerance="|beta* - paper| <= 0.25 (issue 2)",
+                                tolerance="|beta* - paper| <= 0.25",
                                 details=f"{exc}; {settings}"))  # fmt: skip
     if failed:
         return failed, [], res

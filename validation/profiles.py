@@ -17,7 +17,7 @@ import numpy as np
 #: The paper's gains for lambda1 = 5e-4 (Fig. Be caption).
 PAPER_BETA = {"single": 20.306, "coupled": 21.032}
 
-#: Window (s) of the trajectory comparison, issue 3's acceptance: < 1 % over 10 s.
+#: Window (s) of the trajectory comparison: agreement to < 1 % over 10 s.
 TRAJECTORY_WINDOW = 10.0
 
 

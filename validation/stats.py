@@ -208,7 +208,7 @@ def worst(statuses: list[str]) -> str:
 
 # ------------------------------------------------- heavy-tailed samples
 def geometric_mean(x: np.ndarray, axis: int = -1) -> np.ndarray:
-    """exp(mean(log x)) of positive values (paper Fig. rms plots log RMS)."""
+    """exp(mean(log x)) of positive values (paper Fig. 6 plots log RMS)."""
     return np.exp(np.mean(np.log(np.asarray(x, dtype=float)), axis=axis))
 
 

@@ -6,6 +6,7 @@ import argparse
 import os
 import time
 
+from cip.names import cart_joint, hinge_joint
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 
@@ -138,8 +139,8 @@ def cmd_view(a: argparse.Namespace) -> int:
     tr, mj_model, pos, decimate = _simulate(a)
     data = mujoco.MjData(mj_model)
     step = decimate * tr.attrs["dt"]
-    adr = [(mj_model.joint(f"x_M{i + 1}").qposadr[0], mj_model.joint(f"theta_{i + 1}").qposadr[0])
-           for i in range(pos.shape[1])]  # fmt: skip
+    adr = [(mj_model.joint(cart_joint(i)).qposadr[0], mj_model.joint(hinge_joint(i)).qposadr[0])
+           for i in range(1, pos.shape[1] + 1)]  # fmt: skip
     with mujoco.viewer.launch_passive(mj_model, data) as viewer:
         while viewer.is_running():
             for k in range(pos.shape[0]):

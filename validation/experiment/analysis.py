@@ -228,7 +228,7 @@ def condition_ellipses(
     results: list[StickResult], include_incomplete: bool = False
 ) -> dict[str, dict]:
     """Mean and standard deviation of (tau_hat, RMS in model units) per condition
-    (Fig. rmstau); incomplete trials left out unless ``include_incomplete``."""
+    (Fig. 16); incomplete trials left out unless ``include_incomplete``."""
     out = {}
     for mode in MODEL_NAMES:
         pts = np.array([(r.tau_hat, r.rms) for r in results

@@ -58,7 +58,7 @@ def register(subparsers) -> None:
     )  # fmt: skip
     s.set_defaults(func=cmd_serve)
 
-    a = sub.add_parser("analyze", help="Tables STCC and RMS, Figs. move, stcc, rmstau",
+    a = sub.add_parser("analyze", help="Tables 1 and 2, Figs. 12-16",
                        description="Analyse a directory of recordings: the paper's STCC and "
                        "RMS tables and its figures of the movement, STCC and RMS vs "
                        "tau.")  # fmt: skip

@@ -177,7 +177,7 @@ def fig_stcc(picks, mode: str, path: Path) -> Path:
 
 
 def fig_rmstau(results: list[StickResult], ellipses: dict, path: Path) -> Path:
-    """tau_hat against RMS over all trials, mean +- sd ellipses per condition (Fig. rmstau)."""
+    """tau_hat against RMS over all trials, mean +- sd ellipses per condition (Fig. 16)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -212,7 +212,7 @@ def write_report(
     """Analyse every recording in ``directory``; write report.md/html and results.json.
 
     Trials cut short from outside (:data:`.analysis.INCOMPLETE`) are shown but left out
-    of the averages, the ellipses and Fig. rmstau unless ``include_incomplete``.
+    of the averages, the ellipses and Fig. 16 unless ``include_incomplete``.
     """
     out.mkdir(parents=True, exist_ok=True)
     results, trajs = analyse_directory(directory)
@@ -231,7 +231,7 @@ def write_report(
           ("Trials cut short from outside are **included** in the averages (as asked)."
            if include_incomplete else
            "Trials cut short from outside are shown with their end reason in brackets and "
-           "**left out** of the averages, the ellipses and Fig. rmstau "
+           "**left out** of the averages, the ellipses and Fig. 16 "
            "(`--include-incomplete` includes them)."), "",
           "## Trials", "",
           "| file | mode | subject | trial | ended | in averages | duration (s) | tau_hat (s) "
@@ -264,7 +264,7 @@ def write_report(
         md += paper_rows("tau_hat", 2)
         md += ["Table RMS (unit not stated; the size of pixels):", ""]
         md += paper_rows("rms", 2)
-    md += ["## Fig. rmstau: means and standard deviations per condition", "",
+    md += ["## Fig. 16: means and standard deviations per condition", "",
            "| condition | n | mean tau_hat (s) | sd tau_hat (s) | mean RMS (model units) "
            "| sd RMS (model units) |",
            "|---|---|---|---|---|---|"]  # fmt: skip

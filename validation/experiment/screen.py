@@ -1,4 +1,4 @@
-"""Screen geometry of the experiment (paper section 4.1, Fig. setup(b)).
+"""Screen geometry of the experiment (paper section 4.1, Fig. 11(b)).
 
 The screen area is 1200 x 600 pixels; the model displacement range [-3, 3]
 maps linearly to the horizontal pixels [1, 1200] (pixel 1 <-> -3, pixel 1200

@@ -13,7 +13,7 @@ Coupled task, eq. ((5)) with q_M1, q_M2 from two mice::
 i.e. q_T'' + gamma q_T' = alpha (q_T - (q_M1 + q_M2) / 2): the common tip is
 driven by the mean of the two lower ends.
 
-Reading of the rigid rod (paper eq. dqT and section 4.1).  In the reduced
+Reading of the rigid rod (paper eq. (4) and section 4.1).  In the reduced
 model both tips share one coordinate q_T, measured from each stick's own
 upright reference (as in :mod:`cipcore.schema`).  On the screen the two thick
 lines are drawn a constant distance l apart, q_T1 = q_T and q_T2 = q_T + l,
@@ -201,6 +201,7 @@ class MujocoTask:
         import mujoco
 
         from cip.model import CIPParams, build
+        from cip.names import cart_joint, hinge_joint, motor
 
         phys = CIPParams.from_reduced(settings.params, rod_length=max(settings.rod_length, 1e-3))
         self._mj = mujoco
@@ -211,11 +212,11 @@ class MujocoTask:
         self._M = phys.cart_mass
         self._sub = settings.substeps
         obj = mujoco.mjtObj
-        self._cart = [self.model.joint(f"x_M{i + 1}").qposadr[0] for i in range(self._n)]
-        self._hinge = [self.model.joint(f"theta_{i + 1}").qposadr[0] for i in range(self._n)]
-        self._cart_v = [self.model.joint(f"x_M{i + 1}").dofadr[0] for i in range(self._n)]
-        self._hinge_v = [self.model.joint(f"theta_{i + 1}").dofadr[0] for i in range(self._n)]
-        self._u = [mujoco.mj_name2id(self.model, obj.mjOBJ_ACTUATOR, f"u_{i + 1}")
+        self._cart = [self.model.joint(cart_joint(i + 1)).qposadr[0] for i in range(self._n)]
+        self._hinge = [self.model.joint(hinge_joint(i + 1)).qposadr[0] for i in range(self._n)]
+        self._cart_v = [self.model.joint(cart_joint(i + 1)).dofadr[0] for i in range(self._n)]
+        self._hinge_v = [self.model.joint(hinge_joint(i + 1)).dofadr[0] for i in range(self._n)]
+        self._u = [mujoco.mj_name2id(self.model, obj.mjOBJ_ACTUATOR, motor(i + 1))
                    for i in range(self._n)]  # fmt: skip
         for i, b in enumerate(settings.initial_bases()):
             self.data.qpos[self._cart[i]] = b
