@@ -14,20 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import engine_or_skip
 
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams
-from cipcore.registry import REFERENCE, availability, engine_names, get_engine
+from cipcore.registry import REFERENCE, engine_names, get_engine
 from validation import contract
 
 P = BalanceParams(beta=20.306)
-
-
-def _engine(name: str):
-    reason = availability(name)
-    if reason is not None:
-        pytest.skip(f"engine {name!r} unavailable: {reason}")
-    return get_engine(name)
 
 
 ENGINES = engine_names()
@@ -36,7 +30,7 @@ RIGID = [n for n in ENGINES if n != REFERENCE]
 
 def _check(fn, name: str, *args) -> None:
     try:
-        fn(_engine(name), *args)
+        fn(engine_or_skip(name), *args)
     except contract.ContractSkip as exc:
         pytest.skip(str(exc))
 
@@ -56,7 +50,7 @@ def test_delay_is_tau_over_dt_steps(name: str) -> None:
 def test_delay_is_tau_over_dt_steps_for_any_integrator(integrator: str) -> None:
     """MuJoCo stepping RK4 or implicitfast applies the same delay (the estimator assumes
     no stepper)."""
-    d, resid = contract.lag_residuals(_engine("mujoco"), integrator)
+    d, resid = contract.lag_residuals(engine_or_skip("mujoco"), integrator)
     assert min(resid, key=resid.get) == d, resid
     assert resid[d] < 1e-3 and min(resid[d - 1], resid[d + 1]) > 10 * resid[d]
 

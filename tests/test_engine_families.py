@@ -15,26 +15,20 @@ import sys
 
 import numpy as np
 import pytest
+from helpers import engine_or_skip
 
 from cip.model import CIPParams, build
 from cip.runner import MujocoRollout
 from cip.simulate import simulate_full
 from cipcore import registry
 from cipcore.params import BalanceParams
-from cipcore.registry import availability, get_engine
+from cipcore.registry import get_engine
 from validation.agreement import instrument_checks
 from validation.faults import Fault, make_fault
 from validation.stats import FAIL
 
 FAMILIES = ("bullet", "exudyn", "simbody")
 P = BalanceParams(beta=20.306)
-
-
-def _engine(name: str):
-    reason = availability(name)
-    if reason is not None:
-        pytest.skip(f"engine {name!r} unavailable: {reason}")
-    return get_engine(name)
 
 
 def faulty_backend(base: type, fault: Fault) -> type:
@@ -91,7 +85,7 @@ def test_a_fault_at_the_engine_boundary_moves_the_engine_as_it_moves_mujoco(
     point-mass bob refuses a bob inertia with a one-line error instead."""
     from cipcore.params import ParameterError
 
-    base = _engine(name).backend()
+    base = engine_or_skip(name).backend()
     fault = make_fault(kind, size)
     try:
         faulty = _run(faulty_backend(base, fault), model)
@@ -108,7 +102,7 @@ def test_a_fault_at_the_engine_boundary_moves_the_engine_as_it_moves_mujoco(
 def test_one_step_delay_error_fails_the_run_checks(name, monkeypatch) -> None:
     """A one-step-late delay in the engine fails the direct checks that `run --engine` and
     `engines` apply (the delay measured from the response, and the twin)."""
-    engine = _engine(name)
+    engine = engine_or_skip(name)
     late = faulty_backend(engine.backend(), make_fault("delay_late", 1))
     faulty = dataclasses.replace(engine, name=f"{name}-late", backend=lambda: late)
     monkeypatch.setattr(sys.modules[__name__], "FAULTY", faulty, raising=False)
@@ -143,14 +137,14 @@ def test_exudyn_refuses_a_bob_of_finite_radius() -> None:
 
 def test_bullet_single_model_is_mujoco_to_rounding() -> None:
     """Same scheme (semi-implicit Euler, explicit forces), no constraint: the same numbers."""
-    base = _engine("bullet").backend()
+    base = engine_or_skip("bullet").backend()
     assert _rel(_run(base), _clean("mujoco", "single")) < 1e-12
 
 
 @pytest.mark.parametrize("name", FAMILIES)
 def test_import_banners_stay_off_stdout_and_stderr(name: str, tmp_path) -> None:
     """Nothing on stdout or stderr, and no log file left in the working directory."""
-    _engine(name)
+    engine_or_skip(name)
     import os
 
     code = (

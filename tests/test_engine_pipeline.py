@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import engine_or_skip
 
 from cip.mjcf_params import read_mapping
 from cipcore.params import BalanceParams
-from cipcore.registry import availability, get_engine
+from cipcore.registry import get_engine
 from reduced.twin import TwinParams, simulate_twin
 from validation.agreement import instrument_checks, model_file
 from validation.faults import make_fault
@@ -16,15 +17,8 @@ from validation.metrics import relative_l2
 BETA = {"single": 20.306, "coupled": 21.032}
 
 
-def _engine(name: str):
-    reason = availability(name)
-    if reason is not None:
-        pytest.skip(f"engine {name!r} unavailable: {reason}")
-    return get_engine(name)
-
-
 def _twin_distance(name: str, model: str, integrator: str | None, duration: float = 2.0):
-    eng = _engine(name)
+    eng = engine_or_skip(name)
     m = model_file(model, None, integrator)
     mp = read_mapping(m)
     p = BalanceParams(beta=BETA[model])
@@ -66,7 +60,7 @@ def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
 def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: str, size: float):
     """A one-step-late delay, +1 % cart damping and +0.5 % pole length in the single model,
     injected into the engine, fail the checks `run --engine` and `engines` both run."""
-    _engine(name)
+    engine_or_skip(name)
     fault = make_fault(kind, size)
     checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine=name)
     failed = [c.name for c in checks if c.status == "fail"]
@@ -77,7 +71,7 @@ def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: s
 
 def test_one_step_late_delay_fails_mjx() -> None:
     """MJX too (a control edit: the compiled step is reused, no new compilation)."""
-    _engine("mjx")
+    engine_or_skip("mjx")
     fault = make_fault("delay_late", 1)
     checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine="mjx")
     failed = [c.name for c in checks if c.status == "fail"]
@@ -85,13 +79,13 @@ def test_one_step_late_delay_fails_mjx() -> None:
 
 
 def test_unmodified_drake_passes_every_direct_check() -> None:
-    _engine("drake")
+    engine_or_skip("drake")
     checks = instrument_checks(1, 1, threads=1, engine="drake")
     assert [c.name for c in checks if c.status != "pass"] == []
 
 
 def test_a_fault_an_engine_cannot_have_is_not_applicable() -> None:
-    eng = _engine("drake")
+    eng = engine_or_skip("drake")
     assert "rigid" in make_fault("rod_softness", 25.0).not_applicable(eng)
     assert "own integrator" in make_fault("integrator", 1).not_applicable(eng)
     assert make_fault("rod_softness", 25.0).not_applicable(get_engine("mujoco")) is None
@@ -116,7 +110,7 @@ def test_integrator_is_set_in_the_model_file_and_refused_where_fixed(capsys) -> 
     m = model_file("single", None, "RK4")
     assert read_mapping(m).integrator == "RK4"
     assert np.array_equal(m.opt.gravity, model_file("single").opt.gravity)
-    _engine("drake")
+    engine_or_skip("drake")
     assert main(["selftest", "--engine", "drake", "--integrator", "RK4"]) == 2
     assert "it steps with SAP" in capsys.readouterr().err
 

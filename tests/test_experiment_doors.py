@@ -19,22 +19,14 @@ import pytest
 
 aiohttp = pytest.importorskip("aiohttp", reason="the experiment server needs aiohttp")
 
+from helpers import until  # noqa: E402
+
 from validation.experiment.protocol import BadMessage, parse  # noqa: E402
 from validation.experiment.recording import load_trial  # noqa: E402
 from validation.experiment.server import STATIC, ServerConfig, start  # noqa: E402
 
 HUMANS = [{"kind": "human", "label": "A"}, {"kind": "human", "label": "B"}]
 BIG = int("9" * 400)
-
-
-async def _until(ws, kind: str, timeout: float = 10.0) -> dict:
-    while True:
-        msg = await ws.receive(timeout=timeout)
-        if msg.type != aiohttp.WSMsgType.TEXT:
-            raise AssertionError(f"socket closed waiting for {kind}: {msg}")
-        d = json.loads(msg.data)
-        if d["type"] == kind:
-            return d
 
 
 class Server:
@@ -60,7 +52,7 @@ class Server:
     async def create(self, ws, mode="coupled", seats=HUMANS, trial=1) -> dict:
         await ws.send_json({"type": "create", "token": self.token, "mode": mode,
                             "trial": trial, "seats": seats})  # fmt: skip
-        return await _until(ws, "created")
+        return await until(ws, "created")
 
 
 def test_a_freed_seat_cannot_be_taken_over_only_its_secret_takes_it_back(tmp_path):
@@ -71,28 +63,28 @@ def test_a_freed_seat_cannot_be_taken_over_only_its_secret_takes_it_back(tmp_pat
             code, secret_a = created["code"], created["secret"]
             async with srv.ws() as b:
                 await b.send_json({"type": "join", "code": code, "label": "B"})
-                assert (await _until(b, "joined"))["seat"] == 1
+                assert (await until(b, "joined"))["seat"] == 1
                 await a.close()  # A's page closes while waiting: seat 0 stays A's
                 await asyncio.sleep(0.1)
                 async with srv.ws() as c:
                     for label in ("A", "C"):
                         await c.send_json({"type": "join", "code": code, "label": label})
-                        assert "full" in (await _until(c, "error"))["error"]
+                        assert "full" in (await until(c, "error"))["error"]
                     await c.send_json({"type": "join", "code": code, "label": "A",
                                        "secret": "x" * 22})  # fmt: skip
-                    assert "secret" in (await _until(c, "error"))["error"]
+                    assert "secret" in (await until(c, "error"))["error"]
                     # B's page cannot take A's seat either: a socket holds one seat
                     await b.send_json({"type": "join", "code": code, "label": "A"})
-                    assert "not possible" in (await _until(b, "error"))["error"]
+                    assert "not possible" in (await until(b, "error"))["error"]
                     await c.send_json({"type": "join", "code": code, "label": "A",
                                        "secret": secret_a})  # fmt: skip
-                    back = await _until(c, "joined")
+                    back = await until(c, "joined")
                     assert back["seat"] == 0 and back["secret"] == secret_a
                     # while A's new page holds the seat, the secret cannot take it again
                     async with srv.ws() as d:
                         await d.send_json({"type": "join", "code": code, "label": "A",
                                            "secret": secret_a})  # fmt: skip
-                        assert "in use" in (await _until(d, "error"))["error"]
+                        assert "in use" in (await until(d, "error"))["error"]
 
     asyncio.run(go())
 
@@ -112,7 +104,7 @@ def test_a_label_ending_in_a_newline_is_refused_on_the_socket(tmp_path):
             seats = [{"kind": "human", "label": "A\n"}]
             await a.send_json({"type": "create", "token": srv.token, "mode": "single",
                                "trial": 1, "seats": seats})  # fmt: skip
-            return await _until(a, "error"), srv.server.sessions
+            return await until(a, "error"), srv.server.sessions
 
     err, sessions = asyncio.run(go())
     assert "label" in err["error"] and sessions == {}
@@ -125,7 +117,7 @@ def test_a_bot_delay_off_the_time_step_is_an_error_before_any_countdown(tmp_path
                    "seed": 1}  # fmt: skip
             await a.send_json({"type": "create", "token": srv.token, "mode": "single",
                                "trial": 1, "seats": [bot]})  # fmt: skip
-            return await _until(a, "error"), srv.server.sessions
+            return await until(a, "error"), srv.server.sessions
 
     err, sessions = asyncio.run(go())
     assert "tau" in err["error"] and "whole number" in err["error"] and sessions == {}
@@ -158,13 +150,13 @@ def test_a_huge_integer_leaves_the_trial_running(tmp_path):
         async with Server(tmp_path) as srv, srv.ws() as a:
             await srv.create(a, "single", [{"kind": "human", "label": "A"}])
             await a.send_json({"type": "ready"})
-            await _until(a, "start")
+            await until(a, "start")
             await a.send_str('{"type": "mouse", "x": ' + "9" * 400 + "}")
             await a.send_json({"type": "mouse", "x": 400.0})
             for _ in range(5):
-                await _until(a, "frame")
+                await until(a, "frame")
             await a.send_json({"type": "abort"})
-            return await _until(a, "end")
+            return await until(a, "end")
 
     end = asyncio.run(go())
     assert end["reason"] == "abort" and end["dropped_by_type"] == {"invalid": 1}
@@ -211,7 +203,7 @@ def test_no_token_or_join_code_in_the_log(tmp_path, caplog):
                 assert r.status == 200
             async with srv.ws() as b:
                 await b.send_json({"type": "join", "code": code, "label": "B"})
-                await _until(b, "joined")
+                await until(b, "joined")
             await a.close()
             return srv.token, code
 
@@ -226,8 +218,8 @@ def test_every_message_type_is_rate_limited_and_counted_in_the_recording(tmp_pat
         async with Server(tmp_path) as srv, srv.ws() as a, srv.ws() as b:
             code = (await srv.create(a))["code"]
             await b.send_json({"type": "join", "code": code, "label": "B"})
-            await _until(b, "joined")
-            await _until(a, "session")
+            await until(b, "joined")
+            await until(a, "session")
             for _ in range(200):  # a flood of ready while waiting: few reach the partner
                 await b.send_json({"type": "ready"})
             await asyncio.sleep(0.2)
@@ -239,7 +231,7 @@ def test_every_message_type_is_rate_limited_and_counted_in_the_recording(tmp_pat
                     break
                 seen += json.loads(m.data)["type"] == "session"
             await a.send_json({"type": "ready"})
-            await _until(a, "start")
+            await until(a, "start")
             client = {"type": "client", "user_agent": "x", "screen": [1, 1], "canvas": [1, 1],
                       "window": [1, 1], "device_pixel_ratio": 1, "zoom": 1,
                       "colors": ["#000000"]}  # fmt: skip
@@ -248,7 +240,7 @@ def test_every_message_type_is_rate_limited_and_counted_in_the_recording(tmp_pat
                 for _ in range(300):
                     await a.send_json(msg)
             await a.send_json({"type": "abort"})
-            return seen, await _until(a, "end"), srv.server.dropped
+            return seen, await until(a, "end"), srv.server.dropped
 
     seen, end, dropped = asyncio.run(go())
     assert seen <= 8  # burst 5 plus 2 per second, not 200
@@ -321,14 +313,14 @@ def test_the_recording_keeps_the_client_side(tmp_path):
             await srv.create(a, "single", [{"kind": "human", "label": "A"}])
             await a.send_json(client)
             await a.send_json({"type": "ready"})
-            await _until(a, "start")
+            await until(a, "start")
             for i in range(5):
                 await a.send_json({"type": "mouse", "x": 400.0 + i, "t": 1000.0 + 10 * i})
-                f = await _until(a, "frame")
+                f = await until(a, "frame")
             await a.send_json({"type": "drawn", "k": [f["k"]], "t": [1234.5]})
             await asyncio.sleep(0.1)
             await a.send_json({"type": "abort"})
-            return await _until(a, "end")
+            return await until(a, "end")
 
     end = asyncio.run(go())
     tr = load_trial(tmp_path / end["file"])

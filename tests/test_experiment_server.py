@@ -17,6 +17,8 @@ import pytest
 
 aiohttp = pytest.importorskip("aiohttp", reason="the experiment server needs aiohttp")
 
+from helpers import until  # noqa: E402
+
 from validation.experiment.recording import find_trials, load_trial  # noqa: E402
 from validation.experiment.server import ServerConfig, start  # noqa: E402
 
@@ -25,17 +27,6 @@ BOT = {"kind": "bot", "beta": 21.0, "tau": 0.1, "nu": 0.6}
 
 def _bot(label: str, seed: int) -> dict:
     return {**BOT, "label": label, "seed": seed}
-
-
-async def _until(ws, kind: str, timeout: float = 20.0) -> dict:
-    """Next message of type ``kind`` (others are skipped)."""
-    while True:
-        msg = await ws.receive(timeout=timeout)
-        if msg.type != aiohttp.WSMsgType.TEXT:
-            raise AssertionError(f"socket closed waiting for {kind}: {msg}")
-        d = json.loads(msg.data)
-        if d["type"] == kind:
-            return d
 
 
 async def _frames_until_end(ws) -> tuple[list[dict], dict]:
@@ -61,7 +52,7 @@ def test_bot_session_runs_at_50_hz_and_is_recorded(tmp_path):
             async with aiohttp.ClientSession() as s, s.ws_connect(url.split("?")[0] + "ws") as ws:
                 await ws.send_json({"type": "create", "token": token, "mode": "coupled",
                                     "trial": 2, "seats": [_bot("A", 1), _bot("B", 2)]})  # fmt: skip
-                created = await _until(ws, "created")
+                created = await until(ws, "created")
                 assert created["seat"] is None  # a spectator: both seats are bots
                 await ws.send_json({"type": "ready"})
                 return await _frames_until_end(ws)
@@ -91,12 +82,12 @@ async def _human_pair(tmp_path, duration=30.0):
     await a.send_json({"type": "create", "token": token, "mode": "coupled", "trial": 1,
                        "seats": [{"kind": "human", "label": "A"},
                                  {"kind": "human", "label": "B"}]})  # fmt: skip
-    code = (await _until(a, "created"))["code"]
+    code = (await until(a, "created"))["code"]
     await b.send_json({"type": "join", "code": code, "label": "B"})
-    await _until(b, "joined")
+    await until(b, "joined")
     for ws in (a, b):
         await ws.send_json({"type": "ready"})
-    await _until(a, "start")
+    await until(a, "start")
     return runner, server, s, a, b
 
 
@@ -155,9 +146,9 @@ def test_wrong_token_and_wrong_code_are_refused(tmp_path):
             async with aiohttp.ClientSession() as s, s.ws_connect(base) as ws:
                 await ws.send_json({"type": "create", "token": "guess", "mode": "single",
                                     "trial": 1, "seats": [_bot("A", 1)]})  # fmt: skip
-                e1 = await _until(ws, "error")
+                e1 = await until(ws, "error")
                 await ws.send_json({"type": "join", "code": "A" * 22, "label": "Z"})
-                e2 = await _until(ws, "error")
+                e2 = await until(ws, "error")
                 await ws.send_json({"type": "mouse", "x": 10.0})  # no seat: dropped
                 await ws.send_json({"type": "ready"})  # no session: dropped
                 await asyncio.sleep(0.1)
@@ -209,7 +200,7 @@ def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
                 last = -1
                 t_end = time.monotonic() + 3.0
                 while time.monotonic() < t_end:
-                    d = await _until(ws, "frame")
+                    d = await until(ws, "frame")
                     last = d["k"]
                 os.kill(proc.pid, signal.SIGKILL)
                 return last
@@ -247,9 +238,9 @@ def test_sigterm_finalises_the_running_trial(tmp_path):
                                     "trial": 1, "seats": [_bot("A", 1)]})  # fmt: skip
                 await ws.send_json({"type": "ready"})
                 for _ in range(25):
-                    await _until(ws, "frame")
+                    await until(ws, "frame")
                 proc.send_signal(signal.SIGTERM)
-                return await _until(ws, "end")
+                return await until(ws, "end")
 
         end = _run(go())
         assert proc.wait(timeout=20) == 0
