@@ -70,3 +70,11 @@ def test_a_wrong_trajectories_file_is_bad_input(case, tmp_path, capsys):
                  str(short)]) == 2  # fmt: skip
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "shape (2, 5, 1)" in err
+
+
+def test_the_declared_engine_must_be_a_rigid_body_engine(case, capsys):
+    """``case check --engine`` takes its tolerances from the registry; the reference is refused."""
+    assert main(["case", "check", "--case", str(case / "case.npz"), "--trajectories",
+                 str(case / "own.npz"), "--engine", "reduced"]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'reduced' is not a rigid-body engine" in err

@@ -66,7 +66,8 @@ def cmd_check(a: argparse.Namespace) -> int:
     junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
     case = load_case(a.case)
     t = time.perf_counter()
-    checks = [with_limit(c.as_dict()) for c in check_case(case, _load_trajectories(a.trajectories))]
+    traj = _load_trajectories(a.trajectories)
+    checks = [with_limit(c.as_dict()) for c in check_case(case, traj, a.engine)]
     failed = any(c["status"] == "fail" for c in checks)
     if junit:
         from ..junit import run_cases, write_junit
@@ -133,6 +134,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="case file written by `case export`")  # fmt: skip
     c.add_argument("--trajectories", required=True, metavar="FILE.npz",
                    help="the engine's trajectories (<scenario>/<field> arrays)")  # fmt: skip
+    c.add_argument("--engine", default="mujoco",
+                   help="the registered rigid-body engine whose discretisation the trajectories "
+                   "follow: its measured twin and rod tolerances apply")  # fmt: skip
     c.add_argument("--json", action="store_true", help="one JSON object on stdout")
     add_ci_options(c, verbose=False)
     c.set_defaults(func=cmd_check)
