@@ -45,7 +45,17 @@ import numpy as np
 
 from cipcore.params import ParameterError
 
-from .names import ROD, cart_damper, cart_joint, hinge_joint, motor, tip_damper, tip_site
+from .names import (
+    ROD,
+    cart_body,
+    cart_damper,
+    cart_joint,
+    hinge_joint,
+    motor,
+    pendulum_body,
+    tip_damper,
+    tip_site,
+)
 
 _OBJ = mujoco.mjtObj
 
@@ -108,7 +118,8 @@ def geometry_from_mujoco(m: mujoco.MjModel) -> CIPGeometry:
             m.jnt_axis[jt], [0, 1, 0]
         ):
             raise ParameterError("CIP joints must be a slide along +x and a hinge about +y")
-        cart, pend = _id(m, _OBJ.mjOBJ_BODY, f"cart_{i}"), _id(m, _OBJ.mjOBJ_BODY, f"pendulum_{i}")
+        cart = _id(m, _OBJ.mjOBJ_BODY, cart_body(i))
+        pend = _id(m, _OBJ.mjOBJ_BODY, pendulum_body(i))
         if np.any(m.body_pos[pend] != 0) or np.any(m.jnt_pos[[jx, jt]] != 0):
             raise ParameterError("the pendulum's hinge must sit at the cart's origin")
         if not np.array_equal(m.body_iquat[pend], [1, 0, 0, 0]):
@@ -185,11 +196,11 @@ def build_plant(g: CIPGeometry) -> DrakeCIP:
     for i in range(g.n_controllers):
         M, m, L = g.cart_mass[i], g.bob_mass[i], g.pendulum_length[i]
         cart = plant.AddRigidBody(
-            f"cart_{i + 1}",
+            cart_body(i + 1),
             SpatialInertia.MakeFromCentralInertia(M, np.zeros(3), RotationalInertia(1, 1, 1) * M),
         )
         pend = plant.AddRigidBody(
-            f"pendulum_{i + 1}",
+            pendulum_body(i + 1),
             SpatialInertia.MakeFromCentralInertia(
                 m, np.array([0.0, 0.0, L]), RotationalInertia(*g.bob_inertia[i])
             ),

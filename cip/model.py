@@ -43,7 +43,16 @@ from cipcore.atomic import write_text
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
 
-from .names import ROD, cart_body, cart_damper, pendulum_body, tip_damper, tip_site
+from .names import (
+    ROD,
+    bob_geom,
+    cart_body,
+    cart_damper,
+    pendulum_body,
+    pole_geom,
+    tip_damper,
+    tip_site,
+)
 
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 #: MuJoCo's enum of each integrator name (``<option integrator=...>``)
@@ -224,8 +233,8 @@ def model_spec(model: str, p: CIPParams | None = None) -> mujoco.MjSpec:
         pendulum.ipos = [0.0, 0.0, L]
         pendulum.mass = m
         pendulum.inertia = [inertia, inertia, inertia]
-        spec.geom(f"pole_{i}").fromto = [0.0, 0.0, 0.0, 0.0, 0.0, L]
-        bob = spec.geom(f"bob_{i}")
+        spec.geom(pole_geom(i)).fromto = [0.0, 0.0, 0.0, 0.0, 0.0, L]
+        bob = spec.geom(bob_geom(i))
         bob.pos = [0.0, 0.0, L]
         bob.size[0] = p.bob_visual_radius
         spec.site(tip_site(i)).pos = [0.0, 0.0, L]

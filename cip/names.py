@@ -61,3 +61,13 @@ def tip_damper(i: int | str) -> str:
 def cart_damper(i: int | str) -> str:
     """Affine-bias actuator of the cart damping -gamma M v_M (N)."""
     return f"cart_damping_{i}"
+
+
+def pole_geom(i: int | str) -> str:
+    """Capsule drawn from hinge i to the tip (no mass, no contact)."""
+    return f"pole_{i}"
+
+
+def bob_geom(i: int | str) -> str:
+    """Sphere drawn at tip i (no mass, no contact)."""
+    return f"bob_{i}"
