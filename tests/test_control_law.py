@@ -2,7 +2,9 @@
 
 The numba kernels inline :mod:`cipcore.control_kernel`; the warp kernels use
 :mod:`cipcore.control_warp`, checked here bit-equal to the same law on warp's
-CPU device in float64 (``reduced-gpu``) and float32 (``mujoco-warp``).
+CPU device in float64 (``reduced-gpu``) and float32 (``mujoco-warp``); the warp
+kernel's own copy of the delay ring and the recording rule is checked through
+``reduced-gpu``'s trajectories, bit-equal to the numba kernel's.
 """
 
 # no ``from __future__ import annotations``: warp reads the test kernel's annotations as objects
@@ -92,3 +94,20 @@ def test_the_warp_law_equals_the_shared_law_bit_for_bit(dtype: type) -> None:
     host = delayed_random_gain(*args)  # numpy keeps float32 in float32
     assert host.dtype == dtype
     assert np.array_equal(u.numpy(), host)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_the_warp_ring_and_recording_equal_the_numba_kernel_bit_for_bit(model, monkeypatch):
+    """reduced-gpu on warp's CPU device: its copy of the delay ring and the recording rule
+    gives the numba kernel's trajectories exactly (chunks of 300 steps, decimation 7)."""
+    pytest.importorskip("warp", reason="warp-lang is not installed (pip install 'cipval[warp]')")
+    from cipcore.params import BalanceParams
+    from reduced import gpu
+    from reduced.simulate import simulate
+
+    monkeypatch.setattr(gpu, "GPU_CHUNK_STEPS", 300)
+    p, kw = BalanceParams(beta=20.306), {"amplitude": 1e-3, "decimate": 7, "seed": 3}
+    ref = simulate(model, p, 1.25, 3, **kw)
+    dev = gpu.simulate_gpu(model, p, 1.25, 3, device="cpu", **kw)
+    for field, x in ref.data.items():
+        assert np.array_equal(dev[field], x), field
