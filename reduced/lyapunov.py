@@ -154,7 +154,7 @@ def critical_gain(
     threads: int | None = None,
     progress: bool = False,
 ) -> CriticalGain:
-    """The gain beta* at which lambda1(beta) = ``target`` (paper Fig. lLe: 5e-4).
+    """The gain beta* at which lambda1(beta) = ``target`` (paper Fig. 3: 5e-4).
 
     lambda1 is evaluated at ``n_gains`` gains spread over ``beta_range`` with
     the same noise realisations at every gain; a quadratic (or, for fewer than

@@ -128,7 +128,7 @@ def test_lyapunov_bad_input():
 
 
 def test_paper_critical_gains():
-    """Paper Fig. lLe / Be: beta* = 20.306 (single), 21.032 (coupled) for lambda1 = 5e-4.
+    """Paper Figs. 3, 4: beta* = 20.306 (single), 21.032 (coupled) for lambda1 = 5e-4.
 
     Measured (this test's settings): 20.358 +- 0.033 and 21.068 +- 0.032 (about 20 s)."""
     base = BalanceParams(beta=20.0)

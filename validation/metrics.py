@@ -201,7 +201,7 @@ def per_realisation_normalised(v: np.ndarray) -> np.ndarray:
 
 @dataclass
 class DensityRatio:
-    """p_coupled / p_single on [-h, h] (paper Fig. velo: about 2 near the origin).
+    """p_coupled / p_single on [-h, h] (paper Fig. 7: about 2 near the origin).
 
     ``h`` = ``half_width`` x ``scale`` (in the units of the velocities, or
     dimensionless when normalised per realisation); ``ci95`` is a percentile
@@ -413,7 +413,7 @@ def dominant_peaks(
     dominance: float = 0.8,
     significance: float | np.ndarray = 0.0,
 ) -> DominantPeaks:
-    """First dominant peak tau_hat of STCC curves (paper Figs. scc, sccpeak).
+    """First dominant peak tau_hat of STCC curves (paper Figs. 8, 9).
 
     Rule: a peak is an interior lag (neither the first nor the last) whose R
     exceeds its left neighbour and is not below its right one.  tau_hat is the

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-#: The paper's gains for lambda1 = 5e-4 (Fig. Be caption).
+#: The paper's gains for lambda1 = 5e-4 (Fig. 4 caption).
 PAPER_BETA = {"single": 20.306, "coupled": 21.032}
 
 #: Window (s) of the trajectory comparison: agreement to < 1 % over 10 s.

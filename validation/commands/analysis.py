@@ -197,7 +197,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "critical-gain",
         help="beta* where lambda1 equals a target (paper: 5e-4)",
         description="beta* (1/s^2) where lambda1 of the reduced model crosses "
-        "the target (paper Fig. lLe: 5e-4 1/s).",
+        "the target (paper Fig. 3: 5e-4 1/s).",
     )
     add_model_args(p, beta=False)
     add_run_args(p, duration=500.0, realizations=16)
