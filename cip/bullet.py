@@ -47,6 +47,7 @@ from cipcore.engine import Capabilities
 
 from .drake_plant import generalized_forces, geometry_from_mujoco
 from .engines import RigidBodyEngine
+from .mjcf_params import ModelMapping
 from .quiet import quiet_import
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m
@@ -64,6 +65,17 @@ SOLVER_ITERATIONS = 100
 #: Baumgarte error-reduction parameter of the constraint solver, which the point-to-point
 #: rod closure uses (Bullet's default 0.2; ``changeConstraint(erp=...)`` has no effect on it).
 ROD_ERP = 0.8
+
+
+def twin_terms(mapping: ModelMapping) -> dict:
+    """:class:`reduced.twin.TwinParams` keywords of Bullet's exact twin: semi-implicit Euler
+    with the rod as Bullet's velocity-level constraint row, J v+ = -(erp / dt) delta, i.e.
+    the one-row solution with stiffness erp / dt^2, damping 1 / dt and no regulariser."""
+    terms = {**mapping.twin_terms(), "integrator": "Euler"}
+    if terms.get("rod"):
+        dt = mapping.timestep
+        terms.update(rod_stiffness=ROD_ERP / (dt * dt), rod_damping=1.0 / dt, rod_regulariser=0.0)
+    return terms
 
 
 def _pybullet():
@@ -236,10 +248,13 @@ ENGINE = RigidBodyEngine(
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="Euler",
         rod="soft",
-        twin=None,
+        twin="semi-implicit Euler with explicit forces; the rod as Bullet's velocity-level "
+        "constraint row (stiffness erp/dt^2, damping 1/dt)",
     ),
     backend=lambda: BulletRollout,
     requires=("pybullet",),
+    integrators=(),
+    twin_builder=twin_terms,
     max_threads=1,
     notes="Bullet multibodies (pybullet), semi-implicit Euler, rod link + point-to-point (soft)",
 )

@@ -52,6 +52,7 @@ from cipcore.params import ParameterError
 
 from .drake_plant import CIPGeometry, geometry_from_mujoco
 from .engines import RigidBodyEngine
+from .mjcf_params import ModelMapping
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m
 #: (``benchmarks/engine_floor.py``, seeds 0-3, 4 realisations, windows of 1-10 s): the
@@ -64,7 +65,7 @@ TRAJECTORY_TOLERANCE = 5e-3
 NEWMARK_BETA = 0.5
 NEWMARK_GAMMA = 1.0
 #: Newton tolerances of the implicit step (relative to the initial residual; absolute).
-NEWTON_RELATIVE = 1e-12
+NEWTON_RELATIVE = 1e-16
 NEWTON_ABSOLUTE = 1e-16
 #: Largest bob central inertia (kg m^2), relative to m L^2, that a point mass may drop ...
 POINT_MASS_INERTIA = 1e-6
@@ -90,6 +91,16 @@ def _settings(dt: float, n_steps: int):
     ss.solution.file.write = False
     ss.linearSolver.solverType = exu.LinearSolverType.EXUdense
     return ss
+
+
+def twin_terms(mapping: ModelMapping) -> dict:
+    """:class:`reduced.twin.TwinParams` keywords of Exudyn's exact twin: the Newmark step
+    (beta = 1/2, gamma = 1) with the rod rigid at position level (index 3), and the bob a
+    point mass (kappa = 0, as this engine builds it)."""
+    terms = {**mapping.twin_terms(), "integrator": "Newmark", "kappa": 0.0}
+    if terms.get("rod"):
+        terms.update(rod_stiffness=0.0, rod_damping=0.0, rod_regulariser=0.0)
+    return terms
 
 
 class _Realization:
@@ -266,10 +277,13 @@ ENGINE = RigidBodyEngine(
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="Newmark(beta=1/2, gamma=1)",
         rod="rigid",
-        twin=None,
+        twin="Newmark (beta 1/2, gamma 1) with the control and dampers held, gravity "
+        "implicit, the rod a rigid index-3 constraint (Lagrange multiplier), the bob a point mass",
     ),
     backend=lambda: ExudynRollout,
     requires=("exudyn",),
+    integrators=(),
+    twin_builder=twin_terms,
     max_threads=1,
     notes="Exudyn point masses, index-3 distance constraints, implicit Newmark step",
 )

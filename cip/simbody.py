@@ -51,6 +51,7 @@ from cipcore.engine import Capabilities
 
 from .drake_plant import CIPGeometry, generalized_forces, geometry_from_mujoco
 from .engines import RigidBodyEngine
+from .mjcf_params import ModelMapping
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m
 #: (``benchmarks/engine_floor.py``, seeds 0-3, 4 realisations, windows of 1-10 s): the
@@ -69,6 +70,15 @@ def _opensim():
     opensim.Logger.removeFileSink()  # else OpenSim writes opensim.log into the working directory
     opensim.Logger.setLevelString("error")
     return opensim
+
+
+def twin_terms(mapping: ModelMapping) -> dict:
+    """:class:`reduced.twin.TwinParams` keywords of Simbody's exact twin: the fixed-step
+    Runge-Kutta-Merson step with the forces held and the rod rigid (J a = 0 at every stage)."""
+    terms = {**mapping.twin_terms(), "integrator": "RK-Merson"}
+    if terms.get("rod"):
+        terms.update(rod_stiffness=0.0, rod_damping=0.0, rod_regulariser=0.0)
+    return terms
 
 
 class _Model:
@@ -229,10 +239,13 @@ ENGINE = RigidBodyEngine(
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="RK-Merson (fixed step)",
         rod="rigid",
-        twin=None,
+        twin="fixed-step Runge-Kutta-Merson with the control and dampers held, the rod rigid "
+        "(its force from J a = 0 at every stage)",
     ),
     backend=lambda: SimbodyRollout,
     requires=("opensim",),
+    integrators=(),
+    twin_builder=twin_terms,
     max_threads=1,
     notes="Simbody via OpenSim, fixed-step RK-Merson, rod as a ConstantDistanceConstraint",
 )
