@@ -45,10 +45,11 @@ classical Runge-Kutta method, control held over the step (see
 :mod:`reduced._twin_kernel`); and two engines' own steppers with the rod rigid
 (:mod:`reduced._twin_schemes`): ``Newmark`` (beta = 1/2, gamma = 1, the rod an
 index-3 constraint, Exudyn) and ``RK-Merson`` (fixed step, the rod's force from
-J a = 0, Simbody), both with the control and the dampers held over the step.  A rigid rod (Drake's distance constraint in
-SAP's near-rigid regime) is the same one-row solution with k = 1/dt^2, b = 1/dt
-and R = A beta_nr^2 / (4 pi^2) (Castro et al. 2022): the engine declares its
-rod's constants (``rod_stiffness``, ``rod_damping``, ``rod_regulariser``).  What the twin does
+J a = 0, Simbody), both with the control and the dampers held over the step.
+A rigid rod (Drake's distance constraint in SAP's near-rigid regime) is the same
+one-row solution with k = 1/dt^2, b = 1/dt and R = A beta_nr^2 / (4 pi^2)
+(Castro et al. 2022): the engine declares its rod's constants
+(``rod_stiffness``, ``rod_damping``, ``rod_regulariser``). What the twin does
 not capture are terms of second order in the angles (sin theta - theta, the
 pendulum's cos theta in the mass matrix and the moment arms, the rod's tilt when
 the tips are at unequal heights): relative size theta^2, below 1e-10 at the
