@@ -99,3 +99,14 @@ def test_a_soft_twin_rod_is_compared_by_relative_distance() -> None:
     assert rod_check("coupled", st * 1.001, st, ef, tw, "soft", 1e-2, True, "").status == PASS
     bad = rod_check("coupled", st * 1.1, st, ef, tw, "soft", 1e-2, True, "")
     assert bad.status == FAIL and bad.values["stretch_relative_l2"] == pytest.approx(0.1)
+
+
+def test_a_model_the_engine_refuses_counts_as_flagged_in_the_selftest() -> None:
+    """Exudyn's point-mass bob refuses the bob-inertia fault with a one-line error; the
+    selftest counts the refusal as the fault flagged (it cannot pass unnoticed)."""
+    from validation.faults import make_fault
+    from validation.selftest import flagged_by
+
+    _engine("exudyn")
+    by = flagged_by(make_fault("bob_inertia", 1e-4), 1, 1, "exudyn")
+    assert len(by) == 1 and by[0].startswith("engine refused the model") and "point mass" in by[0]
