@@ -41,8 +41,10 @@ coupled at 1e-6 m.  The coupled floor falls as 1 / amplitude (7.3e-9 at 1e-8
 m, 6.0e-10 at 1e-7 m): an absolute floor, the round-off of the tips' world
 positions (the carts sit at x = -+l/2), about 1e-16 m of stretch; above 1e-6 m
 both grow as the amplitude squared (4.3e-8 at 1e-4 m).  Against MuJoCo's soft
-rod as the twin the distance was 1.09e-7 at every amplitude, a model
-difference, not a floor.  The twin does not resolve erp (the same distance
+rod as the twin (semi-implicit Euler, the file's solref/solimp) the distance
+is 1.02e-7 at every amplitude from 1e-8 to 1e-5 m (1.07e-7 at 1e-4 m; same
+seed and sizes): constant relative to the motion, a model difference (the
+soft rod's regulariser), not a floor.  The twin does not resolve erp (the same distance
 for erp 0.8, 0.2 or 0 in the twin): the position error it corrects is
 round-off at these amplitudes.
 
