@@ -42,6 +42,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+#: Runge-Kutta-Merson's Butcher table: stage j's state is y0 + h sum_k A[j, k] f_k ...
+MERSON_A = np.array([
+    [0.0, 0.0, 0.0, 0.0],
+    [1.0 / 3.0, 0.0, 0.0, 0.0],
+    [1.0 / 6.0, 1.0 / 6.0, 0.0, 0.0],
+    [1.0 / 8.0, 0.0, 3.0 / 8.0, 0.0],
+    [1.0 / 2.0, 0.0, -3.0 / 2.0, 2.0],
+])  # fmt: skip
+#: ... and the propagated 4th-order solution y0 + h sum_k B[k] f_k.
+MERSON_B = np.array([1.0 / 6.0, 0.0, 0.0, 2.0 / 3.0, 1.0 / 6.0])
+
 
 @njit(cache=True, nogil=True)
 def _held_forces(st: np.ndarray, u: np.ndarray, coef: np.ndarray, fx: np.ndarray, fe: np.ndarray):
@@ -127,15 +138,7 @@ def merson_step(st: np.ndarray, u: np.ndarray, coef: np.ndarray, minv: np.ndarra
     fx = np.empty(nc)
     fe = np.empty(nc)
     _held_forces(st, u, coef, fx, fe)
-    # stage j's state: y0 + h * sum_k a[j, k] f_k (Butcher's table, row j)
-    a = np.array([
-        [0.0, 0.0, 0.0, 0.0],
-        [1.0 / 3.0, 0.0, 0.0, 0.0],
-        [1.0 / 6.0, 1.0 / 6.0, 0.0, 0.0],
-        [1.0 / 8.0, 0.0, 3.0 / 8.0, 0.0],
-        [1.0 / 2.0, 0.0, -3.0 / 2.0, 2.0],
-    ])  # fmt: skip
-    b = (1.0 / 6.0, 0.0, 0.0, 2.0 / 3.0, 1.0 / 6.0)
+    a, b = MERSON_A, MERSON_B
     for j in range(5):
         for i in range(nc):
             for c in range(4):
