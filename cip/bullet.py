@@ -16,9 +16,12 @@ about +y at tip 1, whose far end is held on tip 2 by a ``JOINT_POINT2POINT``
 constraint.  The rod link's translational mass is taken off the two bobs
 (m_rod/2 each), exact for a rod that stays horizontal (to second order in the
 angles).  Bullet solves the point-to-point constraint at the velocity level
-by projected Gauss-Seidel with Baumgarte position correction (``erp``): the
-loop closure is **soft**, and its stretch is the finding this engine
-contributes (measured in the README's engines table).
+by projected Gauss-Seidel with Baumgarte position correction (``erp``) and no
+constraint-force mixing: J v+ = -(erp / dt) delta, delta the closure's
+position error.  No force stretches it, so to first order in the angles the
+closure is **rigid at the velocity level**; its stretch at large angles (7.3e-3
+m at 0.05 rad with the default erp 0.2) is the position drift of a
+velocity-level constraint, which erp corrects.
 
 Time step: ``stepSimulation`` with one step of dt per call (no substeps):
 Bullet's multibody step is semi-implicit (symplectic) Euler, v+ = v + dt a(q,
@@ -28,6 +31,22 @@ zero and its default joint motors are switched off; the control and the
 MJCF's damping (tip damping on the absolute tip velocity, cart damping) are
 evaluated at the start of each step (:func:`cip.drake_plant.generalized_forces`)
 and applied with ``TORQUE_CONTROL`` for that one step, explicit as in MuJoCo.
+
+The exact twin (:func:`twin_terms`): semi-implicit Euler with the rod as that
+velocity-level row, the one-row solution of :mod:`reduced.twin` with stiffness
+erp / dt^2, damping 1 / dt and no regulariser.  Measured (``python
+benchmarks/twin_floor.py --engines bullet --duration 5 --realizations 2``, seed
+1): relative L2 distance 3.7e-12 single (MuJoCo's numbers) and 5.5e-11
+coupled at 1e-6 m.  The coupled floor falls as 1 / amplitude (7.3e-9 at 1e-8
+m, 6.0e-10 at 1e-7 m): an absolute floor, the round-off of the tips' world
+positions (the carts sit at x = -+l/2), about 1e-16 m of stretch; above 1e-6 m
+both grow as the amplitude squared (4.3e-8 at 1e-4 m).  Against MuJoCo's soft
+rod as the twin (semi-implicit Euler, the file's solref/solimp) the distance
+is 1.02e-7 at every amplitude from 1e-8 to 1e-5 m (1.07e-7 at 1e-4 m; same
+seed and sizes): constant relative to the motion, a model difference (the
+soft rod's regulariser), not a floor.  The twin does not resolve erp (the same distance
+for erp 0.8, 0.2 or 0 in the twin): the position error it corrects is
+round-off at these amplitudes.
 
 One physics client (``DIRECT``) per realisation, so that a realisation's
 numbers never depend on which others share its batch (the constraint solver's
@@ -47,6 +66,7 @@ from cipcore.engine import Capabilities
 
 from .drake_plant import generalized_forces, geometry_from_mujoco
 from .engines import RigidBodyEngine
+from .mjcf_params import ModelMapping
 from .quiet import quiet_import
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m
@@ -64,6 +84,17 @@ SOLVER_ITERATIONS = 100
 #: Baumgarte error-reduction parameter of the constraint solver, which the point-to-point
 #: rod closure uses (Bullet's default 0.2; ``changeConstraint(erp=...)`` has no effect on it).
 ROD_ERP = 0.8
+
+
+def twin_terms(mapping: ModelMapping) -> dict:
+    """:class:`reduced.twin.TwinParams` keywords of Bullet's exact twin: semi-implicit Euler
+    with the rod as Bullet's velocity-level constraint row, J v+ = -(erp / dt) delta, i.e.
+    the one-row solution with stiffness erp / dt^2, damping 1 / dt and no regulariser."""
+    terms = {**mapping.twin_terms(), "integrator": "Euler"}
+    if terms.get("rod"):
+        dt = mapping.timestep
+        terms.update(rod_stiffness=ROD_ERP / (dt * dt), rod_damping=1.0 / dt, rod_regulariser=0.0)
+    return terms
 
 
 def _pybullet():
@@ -235,11 +266,22 @@ ENGINE = RigidBodyEngine(
         family="Bullet",
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="Euler",
-        rod="soft",
-        twin=None,
+        rod="velocity-level",
+        twin="semi-implicit Euler with explicit forces; the rod as Bullet's velocity-level "
+        "constraint row (stiffness erp/dt^2, damping 1/dt, no regulariser)",
     ),
     backend=lambda: BulletRollout,
     requires=("pybullet",),
+    integrators=(),
+    twin_builder=twin_terms,
+    # floor 3.7e-12 single, 5.5e-11 coupled at 1e-6 m (5 s); the smoke run's check (10 s,
+    # seed 2011) 2.8e-11 / 4.9e-11: the suite's 1e-9 leaves a factor 18 on the coupled model
+    twin_tolerance=1e-9,
+    # the twin's rod is rigid to first order: the stretch over the balancing error at
+    # 1e-6 m, 10 s, 2 realisations, measured 8.1e-11 to 1.04e-10 (seeds 1-4, 2011), the
+    # round-off of the tips' world positions; 1e-8 leaves a factor 95
+    rod_tolerance=1e-8,
     max_threads=1,
-    notes="Bullet multibodies (pybullet), semi-implicit Euler, rod link + point-to-point (soft)",
+    notes="Bullet multibodies (pybullet), semi-implicit Euler, rod link + point-to-point "
+    "(velocity level, Baumgarte erp)",
 )

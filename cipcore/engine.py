@@ -54,8 +54,9 @@ class Capabilities:
         descriptive name ("SAP", "generalized-alpha", "semi-implicit Euler",
         "RK-Merson (variable step)").
     rod : how the rod between the tips is held: "soft" (MuJoCo's solref/solimp
-        spring-damper), "rigid" (an exact holonomic distance constraint) or
-        "penalty" (a spring of declared stiffness).
+        spring-damper), "rigid" (an exact holonomic distance constraint),
+        "velocity-level" (a constraint on the velocities with Baumgarte position
+        correction, Bullet's) or "penalty" (a spring of declared stiffness).
     twin : a short statement of how the engine's exact linear twin is built
         (:mod:`reduced.twin`), or None when no exact twin exists; such an engine
         is held to a declared, justified tolerance that the report states.

@@ -31,6 +31,8 @@ from cipcore.control_kernel import (
     sample_slot,
 )
 
+from ._twin_schemes import merson_step, newmark_step
+
 
 @njit(cache=True, nogil=True)
 def _accelerations(
@@ -141,8 +143,9 @@ def advance_twin(
     minv : (2, 2) inverse of the per-unit-cart-mass mass matrix
         [[1 + mu, mu], [mu, mu (1 + kappa)]] in (x, e).
     mstep : (2, 2) the matrix the step applies to the forces: ``minv`` (Euler,
-        RK4) or (M - h D)^-1 (implicit, implicitfast).
-    scheme : 0 Euler, 1 implicit / implicitfast, 2 RK4 (module docstring).
+        RK4), (M - h D)^-1 (implicit, implicitfast) or (M - (h^2/2) K)^-1 (Newmark).
+    scheme : 0 Euler, 1 implicit / implicitfast, 2 RK4 (module docstring); 3 Newmark,
+        4 RK-Merson (:mod:`reduced._twin_schemes`).
     rec : (nb, S, C, 4) samples [tip pos, tip vel, base pos, base vel] recorded
         *before* every step whose global index is a multiple of ``every``.
 
@@ -174,6 +177,10 @@ def advance_twin(
                 u[i] = delayed_random_gain(beta, s_noise, xi[r, k, i], e_delayed)
             if scheme == 2:
                 _rk4_step(state[r], u, coef, minv, h)
+            elif scheme == 3:
+                newmark_step(state[r], u, coef, mstep, h)
+            elif scheme == 4:
+                merson_step(state[r], u, coef, minv, h)
             else:
                 _accelerations(state[r], u, coef, minv, mstep, ax, ae)
                 for i in range(nc):

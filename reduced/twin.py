@@ -42,10 +42,14 @@ applies it with affine-bias actuators, not joint damping); ``implicit`` and
 ``implicitfast``: the same with a = (M - dt D)^-1 (forces), D the dampers'
 velocity derivative (the rod's force still from the explicit M); ``RK4``: the
 classical Runge-Kutta method, control held over the step (see
-:mod:`reduced._twin_kernel`).  A rigid rod (Drake's distance constraint in
-SAP's near-rigid regime) is the same one-row solution with k = 1/dt^2, b = 1/dt
-and R = A beta_nr^2 / (4 pi^2) (Castro et al. 2022): the engine declares its
-rod's constants (``rod_stiffness``, ``rod_damping``, ``rod_regulariser``).  What the twin does
+:mod:`reduced._twin_kernel`); and two engines' own steppers with the rod rigid
+(:mod:`reduced._twin_schemes`): ``Newmark`` (beta = 1/2, gamma = 1, the rod an
+index-3 constraint, Exudyn) and ``RK-Merson`` (fixed step, the rod's force from
+J a = 0, Simbody), both with the control and the dampers held over the step.
+A rigid rod (Drake's distance constraint in SAP's near-rigid regime) is the same
+one-row solution with k = 1/dt^2, b = 1/dt and R = A beta_nr^2 / (4 pi^2)
+(Castro et al. 2022): the engine declares its rod's constants
+(``rod_stiffness``, ``rod_damping``, ``rod_regulariser``). What the twin does
 not capture are terms of second order in the angles (sin theta - theta, the
 pendulum's cos theta in the mass matrix and the moment arms, the rod's tilt when
 the tips are at unequal heights): relative size theta^2, below 1e-10 at the
@@ -74,8 +78,10 @@ from cipcore.schema import (
 from ._twin_kernel import advance_twin
 from .simulate import _store
 
-#: MuJoCo's integrator names -> the kernel's scheme (:func:`reduced._twin_kernel.advance_twin`).
-TWIN_SCHEMES = {"Euler": 0, "implicit": 1, "implicitfast": 1, "RK4": 2}
+#: MuJoCo's integrator names -> the kernel's scheme (:func:`reduced._twin_kernel.advance_twin`);
+#: "Newmark" (beta 1/2, gamma 1) and "RK-Merson" (fixed step) hold the rod rigid.
+TWIN_SCHEMES = {"Euler": 0, "implicit": 1, "implicitfast": 1, "RK4": 2, "Newmark": 3,
+                "RK-Merson": 4}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -121,10 +127,15 @@ class TwinParams:
 
     def step_matrix(self) -> np.ndarray:
         """The matrix one step applies to the forces: M^-1, or (M - dt D)^-1 for the
-        implicit integrators (D the dampers' velocity derivative, per unit M)."""
+        implicit integrators (D the dampers' velocity derivative, per unit M), or
+        (M - (h^2/2) K)^-1 for Newmark (K q = (0, mu alpha e), gravity at q+)."""
+        mu, kappa, h = self.mass_ratio, self.kappa, self.dt
+        if TWIN_SCHEMES[self.integrator] == 3:
+            k = np.array([[0.0, 0.0], [0.0, mu * self.alpha]])
+            m = np.array([[1.0 + mu, mu], [mu, mu * (1.0 + kappa)]])
+            return np.linalg.inv(m - 0.5 * h * h * k)
         if TWIN_SCHEMES[self.integrator] != 1:
             return self.inverse_mass()
-        mu, kappa, h = self.mass_ratio, self.kappa, self.dt
         gt, gc = self.gamma_tip * mu, self.gamma_cart
         m = np.array([[1.0 + mu, mu], [mu, mu * (1.0 + kappa)]])
         return np.linalg.inv(m + h * np.array([[gc + gt, gt], [gt, gt]]))

@@ -24,6 +24,7 @@ from reduced import BalanceParams, lyapunov, simulate
 
 from . import metrics
 from .profiles import PAPER_BETA, TRAJECTORY_WINDOW, Profile
+from .rod_check import rod_check
 from .stats import (
     FAIL,
     PASS,
@@ -817,25 +818,8 @@ def instrument_checks(
         if mp.n_controllers == 2:
             sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
             st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
-            rel_rod = _relative_l2(sf, st)
-            k = min(sf.shape[1], st.shape[1])
-            nf, nt = np.linalg.norm(sf[:, :k]), np.linalg.norm(st[:, :k])
-            implied = twin_p.rod_stiffness * nt / nf if nf > 0 else float("inf")
             checks.append(
-                Check(
-                    name=f"twin.rod.{model}",
-                    status=PASS if complete and rel_rod <= eng.rod_tolerance else FAIL,
-                    values={
-                        "stretch_relative_l2": rel_rod,
-                        "stretch_rms_m": float(nf / np.sqrt(sf[:, :k].size)),
-                        "implied_stiffness": implied,
-                        "twin_stiffness": twin_p.rod_stiffness,
-                    },
-                    tolerance=f"the rod's stretch (tip 1 - tip 2) matches the twin's {caps.rod} "
-                    f"constraint to relative L2 <= {eng.rod_tolerance:g}; implied stiffness "
-                    "k_twin |d_twin| / |d_full|",
-                    details=details,
-                )
+                rod_check(model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details)
             )
         expected = round(p.tau / m.opt.timestep)
         got = measured_delay(model, pe, phys, m, backend)

@@ -19,6 +19,7 @@ import math
 import time
 
 from cipcore.models import MODEL_NAMES
+from cipcore.params import ParameterError
 
 from .agreement import instrument_checks, rigid_engine
 from .ci_options import add_ci_options, run_environment
@@ -37,8 +38,15 @@ def flagged_by(
 ) -> list[str]:
     """Names of the checks that fail with ``fault`` injected into ``engine`` (all of them run)."""
     models = fault.models if fault is not None else MODEL_NAMES
-    checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models,
-                               engine=engine, integrator=integrator)  # fmt: skip
+    try:
+        checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models,
+                                   engine=engine, integrator=integrator)  # fmt: skip
+    except ParameterError as exc:
+        if fault is None:
+            raise
+        # the engine refuses the faulty model (e.g. a bob inertia a point-mass engine
+        # cannot represent): the fault cannot pass unnoticed
+        return [f"engine refused the model: {exc}"]
     return [c.name for c in checks if c.status == FAIL]
 
 
