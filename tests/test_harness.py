@@ -13,10 +13,8 @@ from validation.stats import FAIL, INCONCLUSIVE, PASS, ci_overlap, paired_equiva
 
 
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("smoke")
-    code = main(["run", "--profile", "smoke", "--out", str(out)])
-    return code, out
+def smoke_run(smoke_run_once):
+    return smoke_run_once
 
 
 def test_smoke_profile_runs_every_stage_and_passes(smoke_run):
@@ -141,6 +139,31 @@ def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]
     return proc.returncode, err, _stages_done(out)
 
 
+def test_sigterm_keeps_every_finished_stage_and_resume_completes(smoke_run, tmp_path):
+    """The fast version of the test below: one interruption (SIGTERM), one resume."""
+    import signal
+
+    from validation.harness import STAGES
+
+    out = tmp_path / "interrupted"
+    code, err, kept = _interrupt_after(_start_run(out), out, 2, signal.SIGTERM)
+    assert code == 143, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("cip-validate: interrupted by SIGTERM: kept ") and "--resume" in last
+    assert len(kept) >= 2 and kept == list(STAGES[: len(kept)])
+    assert json.loads((out / "results.json").read_text())["partial"] is True
+    proc = _start_run(out, "--resume")
+    _, err = proc.communicate(timeout=600)
+    results = json.loads((out / "results.json").read_text())
+    assert results["partial"] is False and results["stages_done"] == list(STAGES)
+    assert results["stages_reused"] == kept and "reused from the last run" in err
+    _, clean_out = smoke_run
+    clean = json.loads((clean_out / "results.json").read_text())
+    assert results["checks"] == clean["checks"] and results["paper"] == clean["paper"]
+    assert proc.returncode == smoke_run[0]
+
+
+@pytest.mark.slow
 def test_sigint_and_sigterm_keep_every_finished_stage_and_resume_completes(smoke_run, tmp_path):
     import signal
 
