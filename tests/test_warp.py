@@ -1,8 +1,10 @@
 """The warp engines (mujoco-warp, reduced-gpu) on warp's CPU device, and their GPU-only paths.
 
-Skipped, with the reason, where ``warp-lang``/``mujoco-warp`` are absent (CI
-installs no ``[warp]`` extra); the CUDA-only checks skip without a CUDA device.
-First use compiles MuJoCo Warp's kernels for the CPU (about a minute, cached).
+Skipped, with the reason, where ``warp-lang``/``mujoco-warp`` are absent; the
+CUDA-only checks skip without a CUDA device.  First use compiles MuJoCo Warp's
+kernels for the CPU (about a minute, cached).  Marked ``warp``: left out of the
+default run, run by CI (which installs the ``[warp]`` extra) as a step of its own,
+``CIPVAL_WARP_DEVICE=cpu pytest -m warp``, with the warp engines' contract tests.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from cipcore.gpu import DEVICE_ENV, warp_unavailable
 from cipcore.models import get_model
 from cipcore.noise import GainNoise
 from cipcore.params import BalanceParams
+
+pytestmark = pytest.mark.warp
 
 pytest.importorskip("warp", reason="warp-lang is not installed (pip install 'cipval[warp]')")
 
