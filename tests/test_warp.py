@@ -106,6 +106,17 @@ def test_mujoco_warp_reproduces_mujoco_cpu_within_float32() -> None:
     assert tr.attrs["diverged"] is None
 
 
+def test_mujoco_warp_gives_the_same_numbers_on_one_thread_and_on_two() -> None:
+    """The shared driver steps realisation blocks on threads; warp's kernel building is
+    serialised (two threads parsing kernels at once failed on CPython < 3.11.8)."""
+    from cip.simulate import simulate_full
+
+    kw = {"seed": 4, "amplitude": 1e-3, "backend": _cpu_backend()}
+    one = simulate_full("coupled", P, 0.2, 2, threads=1, **kw)
+    two = simulate_full("coupled", P, 0.2, 2, threads=2, **kw)
+    assert np.array_equal(one["balancing_error"], two["balancing_error"])
+
+
 def _device_control_errors(model: str, n_steps: int, amplitude: float, seed: int):
     from cip.model import CIPParams
     from cip.warp import WarpChunks
