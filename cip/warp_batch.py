@@ -31,6 +31,7 @@ on warp's CPU device the same launches run one by one.
 from __future__ import annotations
 
 import dataclasses
+import threading
 from dataclasses import dataclass
 
 import mujoco
@@ -47,6 +48,14 @@ from .names import cart_joint, hinge_joint, motor  # noqa: E402
 wp.init()
 
 f32 = wp.float32
+
+#: Serialises :class:`WarpRollout`: the shared drivers step realisation blocks on several
+#: threads, but warp builds kernels on first launch (``ast.parse`` of their Python source,
+#: MuJoCo Warp's kernel cache) and neither is thread-safe; on CPython before 3.11.8 two
+#: threads parsing at once even fail with "SystemError: AST constructor recursion depth
+#: mismatch" (CPython gh-106905).  One block at a time gives the same numbers, since each
+#: block has its own worlds.
+_LOCK = threading.Lock()
 
 
 # ---------------------------------------------------------------- kernels
@@ -158,7 +167,7 @@ class WarpRollout:
         self.nq, self.nv, self.nu = model.nq, model.nv, model.nu
         self.dt = float(model.opt.timestep)
         self.R = n_realizations
-        with wp.ScopedDevice(self.device):
+        with _LOCK, wp.ScopedDevice(self.device):
             self.mx = put_model(model, self.device)
             self.dx = mjw.put_data(model, mujoco.MjData(model), nworld=n_realizations)
             self.ctrl = wp.zeros((n_realizations, 1, self.nu), dtype=f32)
@@ -179,13 +188,14 @@ class WarpRollout:
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         nq, nv, n = self.nq, self.nv, ctrl.shape[1]
-        self._buffers(n)
-        # the state is uploaded every chunk: it came from this float32 device, so this is exact
-        self.dx.qpos.assign(state[:, 1 : 1 + nq].astype(np.float32))
-        self.dx.qvel.assign(state[:, 1 + nq : 1 + nq + nv].astype(np.float32))
-        self.ctrl.assign(ctrl.astype(np.float32))
-        self.chunks.run(n, self._body)
-        rec = self.rec.numpy()
+        with _LOCK:
+            self._buffers(n)
+            # the state is uploaded every chunk: it came from this float32 device, so exact
+            self.dx.qpos.assign(state[:, 1 : 1 + nq].astype(np.float32))
+            self.dx.qvel.assign(state[:, 1 + nq : 1 + nq + nv].astype(np.float32))
+            self.ctrl.assign(ctrl.astype(np.float32))
+            self.chunks.run(n, self._body)
+            rec = self.rec.numpy()
         out[...] = state[:, None, :]
         out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
         out[:, :, 1 : 1 + nq + nv] = rec

@@ -24,8 +24,16 @@ from validation import contract
 P = BalanceParams(beta=20.306)
 
 
-ENGINES = engine_names()
-RIGID = [n for n in ENGINES if n != REFERENCE]
+#: engines on warp (CPU device only by opt-in): marked ``warp``, run by CI's warp step
+ON_WARP = ("mujoco-warp", "reduced-gpu")
+
+
+def _marked(names) -> list:
+    return [pytest.param(n, marks=pytest.mark.warp) if n in ON_WARP else n for n in names]
+
+
+ENGINES = _marked(engine_names())
+RIGID = _marked(n for n in engine_names() if n != REFERENCE)
 
 
 def _check(fn, name: str, *args) -> None:

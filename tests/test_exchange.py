@@ -9,6 +9,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from validation.cli import main
 
@@ -48,6 +49,22 @@ def test_an_engine_that_dies_is_a_crash_not_a_failure(capsys):
     assert "exited with status 3" in doc["checks"][0]["message"]
 
 
+def test_engines_command_validates_an_engine_cmd_beside_the_reference(tmp_path, capsys):
+    """The fast version of the test below: the command and the reference only."""
+    junit = tmp_path / "e.xml"
+    code = main(["engines", "--engine-cmd", CMD, "--engines", "reduced", "--profile", "smoke",
+                 "--json", "--no-figures", "--out", str(tmp_path),
+                 "--junit", str(junit)])  # fmt: skip
+    doc = json.loads(capsys.readouterr().out)
+    rows = {r["engine"]: r for r in doc["engines"]}
+    assert set(rows) == {"reduced", "command"}
+    assert code == 0 and rows["command"]["status"] == "pass"
+    assert 0 < rows["command"]["trajectory_distance"]["coupled"] < 1e-2
+    suites = {s.get("name") for s in ET.parse(junit).getroot().iter("testsuite")}
+    assert suites == {"engines.reduced", "engines.command"}
+
+
+@pytest.mark.slow
 def test_engines_command_validates_an_engine_cmd(tmp_path, capsys):
     junit = tmp_path / "e.xml"
     code = main(["engines", "--engine-cmd", CMD, "--profile", "smoke", "--json",

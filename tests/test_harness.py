@@ -13,10 +13,8 @@ from validation.stats import FAIL, INCONCLUSIVE, PASS, ci_overlap, paired_equiva
 
 
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("smoke")
-    code = main(["run", "--profile", "smoke", "--out", str(out)])
-    return code, out
+def smoke_run(smoke_run_once):
+    return smoke_run_once
 
 
 def test_smoke_profile_runs_every_stage_and_passes(smoke_run):
@@ -141,6 +139,33 @@ def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]
     return proc.returncode, err, _stages_done(out)
 
 
+def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tmp_path):
+    """The fast version of the test below: SIGTERM after two stages, then a resume stopped
+    one stage later; it reuses the kept stages, and every check so far has the numbers of
+    the uninterrupted run."""
+    import signal
+
+    from validation.harness import STAGES
+
+    out = tmp_path / "interrupted"
+    code, err, kept = _interrupt_after(_start_run(out), out, 2, signal.SIGTERM)
+    assert code == 143, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("cip-validate: interrupted by SIGTERM: kept ") and "--resume" in last
+    assert len(kept) >= 2 and kept == list(STAGES[: len(kept)])
+    code, err, kept2 = _interrupt_after(
+        _start_run(out, "--resume"), out, len(kept) + 1, signal.SIGTERM
+    )
+    assert code == 143, err
+    assert len(kept2) > len(kept) and kept2[: len(kept)] == kept
+    partial = json.loads((out / "results.json").read_text())
+    assert partial["partial"] is True and partial["stages_reused"] == kept
+    _, clean_out = smoke_run
+    clean = {c["name"]: c for c in json.loads((clean_out / "results.json").read_text())["checks"]}
+    assert partial["checks"] and all(c == clean[c["name"]] for c in partial["checks"])
+
+
+@pytest.mark.slow
 def test_sigint_and_sigterm_keep_every_finished_stage_and_resume_completes(smoke_run, tmp_path):
     import signal
 

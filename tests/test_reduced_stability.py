@@ -127,6 +127,21 @@ def test_lyapunov_bad_input():
         critical_gain("single", BalanceParams(beta=20.0), (21.0, 20.0))
 
 
+def test_paper_critical_gains_at_low_power():
+    """The fast version of :func:`test_paper_critical_gains`: 16 realisations x 500 s, each
+    beta* and the coupling's shift within 4 of their bootstrap standard deviations (about
+    0.11 each) of the paper's.  Seeds 1-7 and 2011: at most 2.0 standard deviations off."""
+    base = BalanceParams(beta=20.0)
+    kw = {"n_gains": 7, "duration": 500.0, "n_realizations": 16, "seed": 2011}
+    single = critical_gain("single", base, (19.8, 20.8), **kw)
+    coupled = critical_gain("coupled", base, (20.5, 21.5), **kw)
+    assert single.beta_star == pytest.approx(20.306, abs=4 * single.std)
+    assert coupled.beta_star == pytest.approx(21.032, abs=4 * coupled.std)
+    shift_std = float(np.hypot(single.std, coupled.std))
+    assert coupled.beta_star - single.beta_star == pytest.approx(0.726, abs=4 * shift_std)
+
+
+@pytest.mark.slow
 def test_paper_critical_gains():
     """Paper Figs. 3, 4: beta* = 20.306 (single), 21.032 (coupled) for lambda1 = 5e-4.
 

@@ -1,6 +1,6 @@
 """The run's report as a reader sees it: captions, legends, heavy tails, Chromium screenshots.
 
-One smoke run per module (fixture).  Its figures are redrawn from the run's
+One smoke run for the session (``tests/conftest.py``).  Its figures are redrawn from the run's
 saved stages with matplotlib's figures kept open, to check every panel's title
 and legend and the axes of positive quantities; its ``report.html`` is opened
 in Debian's Chromium driven by Playwright (skipped, with the reason, where
@@ -22,16 +22,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validation.cli import main
-
 CHROMIUM = next((p for p in ("/usr/bin/chromium", shutil.which("chromium") or "") if p and
                  os.path.exists(p)), None)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
-def smoke_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("smoke_report")
-    code = main(["run", "--profile", "smoke", "--out", str(out)])
+def smoke_run(smoke_run_once):
+    code, out = smoke_run_once
     assert code == 0
     return out, json.loads((out / "results.json").read_text())
 

@@ -59,18 +59,19 @@ def test_seeds_per_point_do_not_depend_on_order_or_workers(tmp_path):
     xr.testing.assert_identical(a, b)
 
 
-def test_killed_sweep_resumes_without_recomputing(tmp_path):
+@pytest.mark.parametrize("duration", [5.0, pytest.param(20.0, marks=pytest.mark.slow)])
+def test_killed_sweep_resumes_without_recomputing(tmp_path, duration):
     """SIGKILL a sweep once some points are on disk; the rerun computes only the rest
-    and gives the same dataset as an uninterrupted run."""
+    and gives the same dataset as an uninterrupted run (5 s points by default, 20 s slow)."""
     study_file = tmp_path / "s.toml"
-    study_file.write_text("""
+    study_file.write_text(f"""
 [study]
 name = "kill"
 model = "coupled"
 engine = "mujoco"
 metrics = ["rms", "max_angle"]
 realizations = 2
-duration = 20.0
+duration = {duration}
 seed = 5
 [grid]
 beta = [20.0, 20.5, 21.0, 21.5, 22.0, 22.5, 23.0, 23.5, 24.0, 24.5, 25.0, 25.5]
@@ -111,11 +112,14 @@ def test_interrupted_in_process_keeps_finished_points(tmp_path):
     assert (rep.computed, rep.reused) == (1, 2)
 
 
-def test_dask_local_cluster_gives_the_same_dataset(tmp_path):
+@pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.slow)])
+def test_dask_local_cluster_gives_the_same_dataset(tmp_path, processes):
+    """A Dask cluster of threads (default) or of worker processes (slow) gives the dataset
+    of local workers."""
     distributed = pytest.importorskip("dask.distributed")
     study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0, 21.0, 22.0]})
     local = open_ds(run_sweep(study, tmp_path / "local", workers=2).dataset_path)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=processes,
                                   dashboard_address=None) as cluster:  # fmt: skip
         rep = run_sweep(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
     xr.testing.assert_identical(local, open_ds(rep.dataset_path))
@@ -167,12 +171,15 @@ beta = [20.0, 21.0, 22.0, 23.0]
 """
 
 
-def test_two_studies_raced_into_one_directory_never_mix(tmp_path):
+@pytest.mark.parametrize(
+    "durations", [(5.0, 7.5), pytest.param((20.0, 30.0), marks=pytest.mark.slow)]
+)
+def test_two_studies_raced_into_one_directory_never_mix(tmp_path, durations):
     """Two studies differing only in duration, started together into one --out: one
     wins, the other fails with one line (directory in use, naming the holder, or holding
     another study), and the winner's dataset equals a clean run of its own study."""
     files = {}
-    for name, duration in (("short", 20.0), ("long", 30.0)):
+    for name, duration in zip(("short", "long"), durations, strict=True):
         files[name] = tmp_path / f"{name}.toml"
         files[name].write_text(RACE_STUDY.format(name=name, duration=duration))
     out = tmp_path / "shared"

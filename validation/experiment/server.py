@@ -37,7 +37,7 @@ from importlib import resources
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from aiohttp import WSMsgType, web
+from aiohttp import WSCloseCode, WSMsgType, web
 from aiohttp.abc import AbstractAccessLogger
 
 from cipcore import ParameterError
@@ -89,6 +89,7 @@ class ExperimentServer:
     def __init__(self, config: ServerConfig) -> None:
         self.config = config
         self.sessions: dict[str, Session] = {}
+        self.sockets: set[web.WebSocketResponse] = set()  # open /ws connections
         self.dropped = 0
 
     def app(self) -> web.Application:
@@ -134,6 +135,10 @@ class ExperimentServer:
             s.end("server_stop")
             if s._task is not None:
                 await asyncio.gather(s._task, return_exceptions=True)
+        # then close every page's socket: a page waiting for the close frame otherwise hangs
+        # until its own close timeout (10 s in aiohttp's client) while the server stops
+        for ws in list(self.sockets):
+            await ws.close(code=WSCloseCode.GOING_AWAY, message=b"server stopped")
 
     def _drop(self, session: Session | None, kind: str, why: str, peer: str) -> None:
         """Count (by message type; ``invalid`` when unparsable) and log a dropped message."""
@@ -153,6 +158,7 @@ class ExperimentServer:
         # messages above 2 KiB are dropped by the protocol; above 64 KiB aiohttp closes the socket
         ws = web.WebSocketResponse(heartbeat=10.0, max_msg_size=65536)
         await ws.prepare(request)
+        self.sockets.add(ws)
         session: Session | None = None
         seat: int | None = None
         limits = {kind: RateLimiter(*rate) for kind, rate in RATES.items()}
@@ -217,6 +223,7 @@ class ExperimentServer:
                 else:
                     self._drop(session, kind, f"{kind} not possible now", peer)
         finally:
+            self.sockets.discard(ws)
             if session is not None:
                 self._leave(session, seat, ws)
         return ws
