@@ -39,6 +39,7 @@ def counted(monkeypatch):
     monkeypatch.setattr(harness.paper, "nonlinear_comparison", stand_in("nonlinear stick"))
     monkeypatch.setattr(harness.agreement, "rod_length_study", stand_in("rod-length study"))
     monkeypatch.setattr(harness, "_figures", stand_in("figures"))
+    monkeypatch.setattr(harness, "start_paper_figures", lambda *a, **k: None)  # drawn in-process
     monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
     return calls
 

@@ -284,6 +284,7 @@ def run_validation(
     # the report's clips need the profile alone: rendered by child processes beside the
     # stages (a resumed run starts them in the figures stage, if that is recomputed)
     rendering = start_clips(out_dir, profile) if figures and not resume else None
+    drawing = None  # the paper figures' child process, started once their stages are done
 
     def compute(name: str) -> Any:
         if name == "conformance and anchors":
@@ -312,8 +313,8 @@ def run_validation(
             return agreement.rod_length_study(profile, out_dir, workers, engine, integrator)
         if not figures:
             return []
-        if rendering:  # the clips started with the run
-            return _figures(out_dir, state, profile, rendering)
+        if rendering or drawing:  # started beside the stages
+            return _figures(out_dir, state, profile, rendering, drawing)
         return _figures(out_dir, state, profile)
 
     try:
@@ -335,6 +336,8 @@ def run_validation(
                 store.save(name, {"value": state[name], "seconds": timings[name],
                                   "inputs": inputs})  # fmt: skip
             done.append(name)
+            if figures and not resume and drawing is None and set(PAPER_FIGURE_STAGES) <= set(done):
+                drawing = start_paper_figures(out_dir, state)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
             partial.update(engine=_engine_record(engine, integrator, model_files))
@@ -359,6 +362,7 @@ def run_validation(
     finally:
         blas.restore_original_limits()
         stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
+        stop_paper_figures(drawing)
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(engine=_engine_record(engine, integrator, model_files))
@@ -409,31 +413,85 @@ def _engine_record(
             "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
-def _figures(
-    out_dir: Path, state: dict[str, Any], profile: Profile,
-    rendering: list[tuple[Path, Any, Any]] | None = None,
-) -> list[Path]:  # fmt: skip
-    """Every figure and clip; ``rendering``: the clips' processes if already started."""
-    from . import plots  # matplotlib: imported by runs that draw figures only
-    from .sweep import plot_metric
+#: the stages :func:`validation.plots.paper_figures` draws (the later ones are not needed)
+PAPER_FIGURE_STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan",
+                       "critical gains", "lambda1 curve", "RMS and velocity",
+                       "STCC and spectra")  # fmt: skip
 
+
+def _paper_figure_data(state: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`validation.plots.paper_figures` from the stages."""
     _, d = state["lambda1 agreement"]
     _, series = state["time-series agreement"]
     _, scan_rows = state["amplitude scan"]
     _, _, bstar = state["critical gains"]
     _, rms_data = state["RMS and velocity"]
     _, peak_data = state["STCC and spectra"]
+    return {"curve": state["lambda1 curve"], "lyapunov_points": d["lyapunov"], "bstar": bstar,
+            "series": series, "rms": rms_data, "peaks": peak_data, "scan": scan_rows}  # fmt: skip
+
+
+def start_paper_figures(out_dir: Path, state: dict[str, Any]) -> tuple[Any, Path, Any]:
+    """Draw the paper figures in a child process (:mod:`validation.figure_worker`) while
+    the later stages run: (process, its job file, its output file)."""
+    import subprocess
+    import tempfile
+
+    job = out_dir / STAGE_DIR / "figures-job.pkl"
+    _atomic(job, pickle.dumps({"out_dir": str(out_dir), "kwargs": _paper_figure_data(state)},
+                              protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
+    log = tempfile.TemporaryFile(mode="w+")
+    cmd = [sys.executable, "-m", "validation.figure_worker", str(job)]
+    return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), job, log
+
+
+def stop_paper_figures(drawing: tuple[Any, Path, Any] | None) -> None:
+    """End the :func:`start_paper_figures` process if still running; remove its job file."""
+    if drawing is None:
+        return
+    proc, job, log = drawing
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+    log.close()
+    job.unlink(missing_ok=True)
+
+
+def finish_paper_figures(drawing: tuple[Any, Path, Any]) -> list[Path]:
+    """The figures the :func:`start_paper_figures` process drew; raises if it failed."""
+    proc, job, log = drawing
+    proc.wait()
+    log.seek(0)
+    lines = log.read().strip().splitlines()
+    job.unlink(missing_ok=True)
+    if proc.returncode != 0:
+        raise RuntimeError(f"drawing the figures failed: {(lines or ['no output'])[-1]}")
+    return [Path(line) for line in lines]
+
+
+def _figures(
+    out_dir: Path, state: dict[str, Any], profile: Profile,
+    rendering: list[tuple[Path, Any, Any]] | None = None,
+    drawing: tuple[Any, Path, Any] | None = None,
+) -> list[Path]:  # fmt: skip
+    """Every figure and clip; ``rendering`` and ``drawing``: the clips' and the paper
+    figures' processes where already started (else the figures are drawn here)."""
+    from .sweep import plot_metric
+
     _, _, rod_ds = state["rod-length study"]
     if rendering is None:  # child processes, rendering while the figures are drawn
         rendering = start_clips(out_dir, profile)
     try:
-        files = plots.paper_figures(
-            out_dir, curve=state["lambda1 curve"], lyapunov_points=d["lyapunov"], bstar=bstar,
-            series=series, rms=rms_data, peaks=peak_data, scan=scan_rows,
-        )  # fmt: skip
+        files = []
+        if drawing is None:
+            from . import plots  # matplotlib: imported by runs that draw figures only
+
+            files = plots.paper_figures(out_dir, **_paper_figure_data(state))
         for metric in ("max_angle", "agreement"):
             png = out_dir / f"fig_rod_length_{metric}.png"
             files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
+        if drawing is not None:  # drawn beside the last stages, in the order above
+            files = finish_paper_figures(drawing) + files
     except BaseException:
         stop_clips(rendering)
         raise
