@@ -20,6 +20,12 @@ and tolerances (its twin and twin tolerance are its own).
 5. the rod-length study;
 6. figures redoing the paper's (from both models where it makes sense).
 
+The report's two clips and its paper figures are drawn by child processes
+started with the run (the figures' process gets its data once the STCC stage
+is done), so they overlap the stages; ``--no-figures`` starts none of them.
+Inside a run BLAS runs on one thread; the per-stage CPU seconds (this process
+and its reaped children) are in ``results.json`` as ``cpu_s``.
+
 Nothing finished is lost: each stage's outputs are written to
 ``DIR/stages/`` as soon as it finishes, and ``DIR/results.json`` is rewritten
 atomically after every stage with ``"partial": true`` until the last.
@@ -284,7 +290,10 @@ def run_validation(
     # the report's clips need the profile alone: rendered by child processes beside the
     # stages (a resumed run starts them in the figures stage, if that is recomputed)
     rendering = start_clips(out_dir, profile) if figures and not resume else None
-    drawing = None  # the paper figures' child process, started once their stages are done
+    # the paper figures' child process: started now (its imports), given its job once the
+    # stages it draws are done
+    worker = spawn_figure_worker(out_dir) if figures and not resume else None
+    drawing = None
 
     def compute(name: str) -> Any:
         if name == "conformance and anchors":
@@ -336,8 +345,8 @@ def run_validation(
                 store.save(name, {"value": state[name], "seconds": timings[name],
                                   "inputs": inputs})  # fmt: skip
             done.append(name)
-            if figures and not resume and drawing is None and set(PAPER_FIGURE_STAGES) <= set(done):
-                drawing = start_paper_figures(out_dir, state)
+            if worker and drawing is None and set(PAPER_FIGURE_STAGES) <= set(done):
+                drawing = start_paper_figures(out_dir, state, worker)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
             partial.update(engine=_engine_record(engine, integrator, model_files))
@@ -362,7 +371,7 @@ def run_validation(
     finally:
         blas.restore_original_limits()
         stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
-        stop_paper_figures(drawing)
+        stop_paper_figures(drawing or worker)
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(engine=_engine_record(engine, integrator, model_files))
@@ -431,28 +440,48 @@ def _paper_figure_data(state: dict[str, Any]) -> dict[str, Any]:
             "series": series, "rms": rms_data, "peaks": peak_data, "scan": scan_rows}  # fmt: skip
 
 
-def start_paper_figures(out_dir: Path, state: dict[str, Any]) -> tuple[Any, Path, Any]:
-    """Draw the paper figures in a child process (:mod:`validation.figure_worker`) while
-    the later stages run: (process, its job file, its output file)."""
+def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any]:
+    """Start :mod:`validation.figure_worker` (it waits for its job on stdin): (process,
+    its job file, its output file)."""
     import subprocess
     import tempfile
 
-    job = out_dir / STAGE_DIR / "figures-job.pkl"
+    log = tempfile.TemporaryFile(mode="w+")
+    cmd = [sys.executable, "-m", "validation.figure_worker"]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT,
+                            text=True)  # fmt: skip
+    return proc, out_dir / STAGE_DIR / "figures-job.pkl", log
+
+
+def start_paper_figures(
+    out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any] | None = None
+) -> tuple[Any, Path, Any]:
+    """Draw the paper figures in the child process ``worker`` (:func:`spawn_figure_worker`,
+    started here if None) while the later stages run; returns it."""
+    proc, job, log = worker or spawn_figure_worker(out_dir)
     _atomic(job, pickle.dumps({"out_dir": str(out_dir), "kwargs": _paper_figure_data(state)},
                               protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
-    log = tempfile.TemporaryFile(mode="w+")
-    cmd = [sys.executable, "-m", "validation.figure_worker", str(job)]
-    return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT), job, log
+    try:
+        proc.stdin.write(f"{job}\n")
+        proc.stdin.close()
+    except OSError:  # the worker died early: finish_paper_figures reports why
+        pass
+    return proc, job, log
 
 
 def stop_paper_figures(drawing: tuple[Any, Path, Any] | None) -> None:
-    """End the :func:`start_paper_figures` process if still running; remove its job file."""
+    """End a figure worker still running (its figures are left out); remove its job file."""
     if drawing is None:
         return
     proc, job, log = drawing
     if proc.poll() is None:
         proc.kill()
         proc.wait()
+    if proc.stdin and not proc.stdin.closed:
+        try:
+            proc.stdin.close()
+        except OSError:
+            pass
     log.close()
     job.unlink(missing_ok=True)
 
