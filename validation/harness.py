@@ -440,25 +440,24 @@ def _paper_figure_data(state: dict[str, Any]) -> dict[str, Any]:
             "series": series, "rms": rms_data, "peaks": peak_data, "scan": scan_rows}  # fmt: skip
 
 
-def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any]:
+def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any, Any]:
     """Start :mod:`validation.figure_worker` (it waits for its job on stdin): (process,
-    its job file, its output file)."""
+    its job file, its stdout file (the figures' paths), its stderr file)."""
     import subprocess
     import tempfile
 
-    log = tempfile.TemporaryFile(mode="w+")
+    out, err = tempfile.TemporaryFile(mode="w+"), tempfile.TemporaryFile(mode="w+")
     cmd = [sys.executable, "-m", "validation.figure_worker"]
-    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT,
-                            text=True)  # fmt: skip
-    return proc, out_dir / STAGE_DIR / "figures-job.pkl", log
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=out, stderr=err, text=True)
+    return proc, out_dir / STAGE_DIR / "figures-job.pkl", out, err
 
 
 def start_paper_figures(
-    out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any] | None = None
-) -> tuple[Any, Path, Any]:
+    out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any, Any] | None = None
+) -> tuple[Any, Path, Any, Any]:
     """Draw the paper figures in the child process ``worker`` (:func:`spawn_figure_worker`,
     started here if None) while the later stages run; returns it."""
-    proc, job, log = worker or spawn_figure_worker(out_dir)
+    proc, job, out, err = worker or spawn_figure_worker(out_dir)
     _atomic(job, pickle.dumps({"out_dir": str(out_dir), "kwargs": _paper_figure_data(state)},
                               protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
     try:
@@ -466,14 +465,14 @@ def start_paper_figures(
         proc.stdin.close()
     except OSError:  # the worker died early: finish_paper_figures reports why
         pass
-    return proc, job, log
+    return proc, job, out, err
 
 
-def stop_paper_figures(drawing: tuple[Any, Path, Any] | None) -> None:
+def stop_paper_figures(drawing: tuple[Any, Path, Any, Any] | None) -> None:
     """End a figure worker still running (its figures are left out); remove its job file."""
     if drawing is None:
         return
-    proc, job, log = drawing
+    proc, job, out, err = drawing
     if proc.poll() is None:
         proc.kill()
         proc.wait()
@@ -482,26 +481,28 @@ def stop_paper_figures(drawing: tuple[Any, Path, Any] | None) -> None:
             proc.stdin.close()
         except OSError:
             pass
-    log.close()
+    out.close()
+    err.close()
     job.unlink(missing_ok=True)
 
 
-def finish_paper_figures(drawing: tuple[Any, Path, Any]) -> list[Path]:
+def finish_paper_figures(drawing: tuple[Any, Path, Any, Any]) -> list[Path]:
     """The figures the :func:`start_paper_figures` process drew; raises if it failed."""
-    proc, job, log = drawing
+    proc, job, out, err = drawing
     proc.wait()
-    log.seek(0)
-    lines = log.read().strip().splitlines()
     job.unlink(missing_ok=True)
     if proc.returncode != 0:
-        raise RuntimeError(f"drawing the figures failed: {(lines or ['no output'])[-1]}")
-    return [Path(line) for line in lines]
+        err.seek(0)
+        why = (err.read().strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"drawing the figures failed: {why}")
+    out.seek(0)
+    return [Path(line) for line in out.read().splitlines() if line.strip()]
 
 
 def _figures(
     out_dir: Path, state: dict[str, Any], profile: Profile,
     rendering: list[tuple[Path, Any, Any]] | None = None,
-    drawing: tuple[Any, Path, Any] | None = None,
+    drawing: tuple[Any, Path, Any, Any] | None = None,
 ) -> list[Path]:  # fmt: skip
     """Every figure and clip; ``rendering`` and ``drawing``: the clips' and the paper
     figures' processes where already started (else the figures are drawn here)."""
