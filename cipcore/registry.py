@@ -9,6 +9,7 @@ Third-party engines register through the ``cipval.engines`` entry-point group
 
 from __future__ import annotations
 
+import functools
 import importlib
 from importlib.metadata import entry_points
 
@@ -46,10 +47,17 @@ def register_engine(name: str, engine: Engine) -> None:
     _import_errors.pop(name, None)
 
 
+@functools.cache
+def _plugins() -> tuple[tuple[str, str], ...]:
+    """The ``cipval.engines`` entry points, read once per process (a scan of every
+    installed distribution's metadata: milliseconds, and engines are looked up often)."""
+    return tuple((ep.name, ep.value) for ep in entry_points(group="cipval.engines"))
+
+
 def _entries() -> dict[str, str]:
     entries = dict(ENGINES)
-    for ep in entry_points(group="cipval.engines"):
-        entries.setdefault(ep.name, ep.value)
+    for name, value in _plugins():
+        entries.setdefault(name, value)
     for name in _runtime:
         entries.setdefault(name, f"<registered at run time: {name}>")
     return entries

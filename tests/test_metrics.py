@@ -116,3 +116,33 @@ def test_laminar_phase_durations_and_exponent():
     t = (1 - u * (1 - 1000**-0.5)) ** -2.0
     slope, se = power_law_exponent(t, 1.0, 1000.0)
     assert slope == pytest.approx(-1.5, abs=max(3 * se, 0.05))
+
+
+def test_bootstrap_broken_lines_fitted_at_once_equal_one_at_a_time():
+    """The bootstrap's broken lines, fitted in one pass, are the one-by-one fits to rounding."""
+    from validation.metrics import _broken_line, _broken_lines, _log_bins
+
+    rng = np.random.default_rng(3)
+    f = np.linspace(0.02, 30.0, 2000)
+    s = (f**-0.5 / (1 + (f / 2) ** 2)) * np.exp(rng.standard_normal((12, f.size)))
+    lf, ls = _log_bins(f, s, 0.05, 20.0, 24)
+    rows = np.stack([ls[rng.integers(0, 12, 12)].mean(axis=0) for _ in range(60)])
+    together = _broken_lines(lf, rows)
+    alone = np.array([_broken_line(lf, r) for r in rows])
+    np.testing.assert_array_equal(together[:, 2], alone[:, 2])  # the same breakpoints
+    np.testing.assert_allclose(together, alone, rtol=1e-12, atol=0)
+
+
+def test_stcc_and_its_bartlett_level_do_not_depend_on_the_number_of_threads(monkeypatch):
+    """Lags (STCC) and realisations (Bartlett) are spread over threads: same numbers for 1 or 4."""
+    import validation.metrics as m
+
+    rng = np.random.default_rng(8)
+    x, y = rng.standard_normal((2, 3, 4000)).cumsum(-1)
+    got = []
+    for n in (1, 4):
+        monkeypatch.setattr(m.os, "cpu_count", lambda n=n: n)
+        t, _, r = m.stcc(x, y, 0.005, 2.0, 0.1, 0.25)
+        got.append((r, m.effective_samples(x, y, 0.005, t, 2.0)))
+    np.testing.assert_array_equal(got[0][0], got[1][0])
+    np.testing.assert_array_equal(got[0][1], got[1][1])

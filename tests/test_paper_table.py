@@ -116,3 +116,25 @@ def test_ratio_status_separates_direction_magnitude_and_inconclusive():
     assert paper._verdict(["supports"] * 2, [False, False]) == (
         "robust: direction reproduced; magnitude not"
     )
+
+
+def test_robustness_reuses_the_paper_stages_simulations(monkeypatch):
+    """After the RMS and STCC stages the robustness stage simulates only its amplitude check,
+    and its table is the one it computes from scratch (same draws, same numbers)."""
+    import json
+
+    p = PROFILES["smoke"]
+    paper.clear_cache()
+    fresh = paper.robustness(p, 2)
+    paper.clear_cache()
+    paper.rms_and_velocity(p, 2)
+    paper.peaks_and_spectra(p, 2)
+    calls = []
+    real = paper.simulate
+    monkeypatch.setattr(paper, "simulate", lambda *a, **k: calls.append(a) or real(*a, **k))
+    shared = paper.robustness(p, 2)
+    paper.clear_cache()
+    assert len(calls) == 4  # amplitude_invariance: 2 models x 2 amplitudes, nothing else
+    assert json.dumps(shared, sort_keys=True, default=str) == json.dumps(
+        fresh, sort_keys=True, default=str
+    )

@@ -39,6 +39,7 @@ def counted(monkeypatch):
     monkeypatch.setattr(harness.paper, "nonlinear_comparison", stand_in("nonlinear stick"))
     monkeypatch.setattr(harness.agreement, "rod_length_study", stand_in("rod-length study"))
     monkeypatch.setattr(harness, "_figures", stand_in("figures"))
+    monkeypatch.setattr(harness, "start_paper_figures", lambda *a, **k: None)  # drawn in-process
     monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
     return calls
 
@@ -109,3 +110,21 @@ def test_deleted_figure_is_redrawn(counted, tmp_path, monkeypatch, capsys):
     _run(out)
     assert counted["figures"] == 2 and (out / "fig_x.png").is_file()
     assert "figure file(s) missing" in capsys.readouterr().err
+
+
+def test_figure_child_process_failure_is_reported_and_an_unused_one_is_ended(tmp_path):
+    """The paper figures' child process: a failure names its last error line; a worker
+    never given its job (the run stopped first) is ended."""
+    (tmp_path / harness.STAGE_DIR).mkdir()
+    state = {"lambda1 agreement": (None, {"lyapunov": []}), "time-series agreement": (None, {}),
+             "amplitude scan": (None, []), "critical gains": (None, None, {}),
+             "lambda1 curve": {}, "RMS and velocity": (None, {}),
+             "STCC and spectra": (None, {})}  # fmt: skip
+    drawing = harness.start_paper_figures(tmp_path, state)
+    with pytest.raises(RuntimeError, match=r"drawing the figures failed: .*Error"):
+        harness.finish_paper_figures(drawing)
+    harness.stop_paper_figures(drawing)
+    assert not (tmp_path / harness.STAGE_DIR / "figures-job.pkl").exists()
+    idle = harness.spawn_figure_worker(tmp_path)
+    harness.stop_paper_figures(idle)
+    assert idle[0].poll() is not None

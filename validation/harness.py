@@ -20,6 +20,12 @@ and tolerances (its twin and twin tolerance are its own).
 5. the rod-length study;
 6. figures redoing the paper's (from both models where it makes sense).
 
+The report's two clips and its paper figures are drawn by child processes
+started with the run (the figures' process gets its data once the STCC stage
+is done), so they overlap the stages; ``--no-figures`` starts none of them.
+Inside a run BLAS runs on one thread; the per-stage CPU seconds (this process
+and its reaped children) are in ``results.json`` as ``cpu_s``.
+
 Nothing finished is lost: each stage's outputs are written to
 ``DIR/stages/`` as soon as it finishes, and ``DIR/results.json`` is rewritten
 atomically after every stage with ``"partial": true`` until the last.
@@ -42,12 +48,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from cipcore.atomic import WriteError, write_bytes
 from cipcore.params import BalanceParams, ParameterError
 
-from . import agreement, paper, plots
+from . import agreement, paper
 from .checklog import with_limit
 from .fingerprint import numerics_fingerprint
 from .profiles import PAPER_BETA, Profile
@@ -269,9 +276,24 @@ def run_validation(
     target = {"files": model_files, "engine": engine, "integrator": integrator}
     bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
     timings: dict[str, float] = {}
+    cpu: dict[str, float] = {}  # CPU seconds per stage (this process and reaped children)
     done: list[str] = []
     reused: list[str] = []
     state: dict[str, Any] = {}
+    # BLAS on one thread: the stages spread their realisations over threads themselves
+    # (numba, MuJoCo's rollout), and BLAS threads on the small matrices here only spin
+    # (Welch's linear detrending took 15x the CPU time with two of them on a loaded machine);
+    # scipy ships its own BLAS: loaded first, so that the limit covers it
+    import scipy.linalg  # noqa: F401
+
+    blas = threadpool_limits(limits=1, user_api="blas")
+    # the report's clips need the profile alone: rendered by child processes beside the
+    # stages (a resumed run starts them in the figures stage, if that is recomputed)
+    rendering = start_clips(out_dir, profile) if figures and not resume else None
+    # the paper figures' child process: started now (its imports), given its job once the
+    # stages it draws are done
+    worker = spawn_figure_worker(out_dir) if figures and not resume else None
+    drawing = None
 
     def compute(name: str) -> Any:
         if name == "conformance and anchors":
@@ -298,7 +320,11 @@ def run_validation(
             return nonlinear
         if name == "rod-length study":
             return agreement.rod_length_study(profile, out_dir, workers, engine, integrator)
-        return _figures(out_dir, state, profile) if figures else []
+        if not figures:
+            return []
+        if rendering or drawing:  # started beside the stages
+            return _figures(out_dir, state, profile, rendering, drawing)
+        return _figures(out_dir, state, profile)
 
     try:
         for name in STAGES:
@@ -312,11 +338,15 @@ def run_validation(
                 state[name], timings[name] = saved["value"], saved["seconds"]
                 reused.append(name)
             else:
+                c = _cpu_seconds()
                 state[name] = compute(name)
                 timings[name] = round(time.perf_counter() - t, 2)
+                cpu[name] = round(_cpu_seconds() - c, 2)
                 store.save(name, {"value": state[name], "seconds": timings[name],
                                   "inputs": inputs})  # fmt: skip
             done.append(name)
+            if worker and drawing is None and set(PAPER_FIGURE_STAGES) <= set(done):
+                drawing = start_paper_figures(out_dir, state, worker)
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
             partial.update(engine=_engine_record(engine, integrator, model_files))
@@ -338,11 +368,28 @@ def run_validation(
     except BaseException:
         bar.close()  # an error message then starts on its own line
         raise
+    finally:
+        blas.restore_original_limits()
+        stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
+        stop_paper_figures(drawing or worker)
     bar.close()
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(engine=_engine_record(engine, integrator, model_files))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
+    results.update(cpu_s=dict(cpu))
     return results
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process's threads and its reaped children.
+
+    Less sensitive to a shared machine's load than the wall time; a process pool's
+    workers count once they have been reaped.
+    """
+    import resource
+
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ch.ru_utime + ch.ru_stime
 
 
 def _write_crash(out_dir: Path, stage: str, exc: BaseException, partial: dict,
@@ -375,24 +422,110 @@ def _engine_record(
             "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
-def _figures(out_dir: Path, state: dict[str, Any], profile: Profile) -> list[Path]:
-    from .sweep import plot_metric
+#: the stages :func:`validation.plots.paper_figures` draws (the later ones are not needed)
+PAPER_FIGURE_STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan",
+                       "critical gains", "lambda1 curve", "RMS and velocity",
+                       "STCC and spectra")  # fmt: skip
 
+
+def _paper_figure_data(state: dict[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`validation.plots.paper_figures` from the stages."""
     _, d = state["lambda1 agreement"]
     _, series = state["time-series agreement"]
     _, scan_rows = state["amplitude scan"]
     _, _, bstar = state["critical gains"]
     _, rms_data = state["RMS and velocity"]
     _, peak_data = state["STCC and spectra"]
+    return {"curve": state["lambda1 curve"], "lyapunov_points": d["lyapunov"], "bstar": bstar,
+            "series": series, "rms": rms_data, "peaks": peak_data, "scan": scan_rows}  # fmt: skip
+
+
+def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any, Any]:
+    """Start :mod:`validation.figure_worker` (it waits for its job on stdin): (process,
+    its job file, its stdout file (the figures' paths), its stderr file)."""
+    import subprocess
+    import tempfile
+
+    out, err = tempfile.TemporaryFile(mode="w+"), tempfile.TemporaryFile(mode="w+")
+    cmd = [sys.executable, "-m", "validation.figure_worker"]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=out, stderr=err, text=True)
+    return proc, out_dir / STAGE_DIR / "figures-job.pkl", out, err
+
+
+def start_paper_figures(
+    out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any, Any] | None = None
+) -> tuple[Any, Path, Any, Any]:
+    """Draw the paper figures in the child process ``worker`` (:func:`spawn_figure_worker`,
+    started here if None) while the later stages run; returns it."""
+    proc, job, out, err = worker or spawn_figure_worker(out_dir)
+    _atomic(job, pickle.dumps({"out_dir": str(out_dir), "kwargs": _paper_figure_data(state)},
+                              protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
+    try:
+        proc.stdin.write(f"{job}\n")
+        proc.stdin.close()
+    except OSError:  # the worker died early: finish_paper_figures reports why
+        pass
+    return proc, job, out, err
+
+
+def stop_paper_figures(drawing: tuple[Any, Path, Any, Any] | None) -> None:
+    """End a figure worker still running (its figures are left out); remove its job file."""
+    if drawing is None:
+        return
+    proc, job, out, err = drawing
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+    if proc.stdin and not proc.stdin.closed:
+        try:
+            proc.stdin.close()
+        except OSError:
+            pass
+    out.close()
+    err.close()
+    job.unlink(missing_ok=True)
+
+
+def finish_paper_figures(drawing: tuple[Any, Path, Any, Any]) -> list[Path]:
+    """The figures the :func:`start_paper_figures` process drew; raises if it failed."""
+    proc, job, out, err = drawing
+    proc.wait()
+    job.unlink(missing_ok=True)
+    if proc.returncode != 0:
+        err.seek(0)
+        why = (err.read().strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"drawing the figures failed: {why}")
+    out.seek(0)
+    return [Path(line) for line in out.read().splitlines() if line.strip()]
+
+
+def _figures(
+    out_dir: Path, state: dict[str, Any], profile: Profile,
+    rendering: list[tuple[Path, Any, Any]] | None = None,
+    drawing: tuple[Any, Path, Any, Any] | None = None,
+) -> list[Path]:  # fmt: skip
+    """Every figure and clip; ``rendering`` and ``drawing``: the clips' and the paper
+    figures' processes where already started (else the figures are drawn here)."""
+    from .sweep import plot_metric
+
     _, _, rod_ds = state["rod-length study"]
-    files = plots.paper_figures(
-        out_dir, curve=state["lambda1 curve"], lyapunov_points=d["lyapunov"], bstar=bstar,
-        series=series, rms=rms_data, peaks=peak_data, scan=scan_rows,
-    )  # fmt: skip
-    for metric in ("max_angle", "agreement"):
-        png = out_dir / f"fig_rod_length_{metric}.png"
-        files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
-    return files + clips(out_dir, profile)
+    if rendering is None:  # child processes, rendering while the figures are drawn
+        rendering = start_clips(out_dir, profile)
+    try:
+        files = []
+        if drawing is None:
+            from . import plots  # matplotlib: imported by runs that draw figures only
+
+            files = plots.paper_figures(out_dir, **_paper_figure_data(state))
+        for metric in ("max_angle", "agreement"):
+            png = out_dir / f"fig_rod_length_{metric}.png"
+            files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
+        if drawing is not None:  # drawn beside the last stages, in the order above
+            files = finish_paper_figures(drawing) + files
+    except BaseException:
+        stop_clips(rendering)
+        raise
+    return files + finish_clips(rendering)
 
 
 def clips(out_dir: Path, profile: Profile) -> list[Path]:
@@ -400,14 +533,17 @@ def clips(out_dir: Path, profile: Profile) -> list[Path]:
 
     Each is ``cip-validate render`` in a child process (offscreen OpenGL must
     be chosen before MuJoCo is imported, which this process has done), with
-    the profile's seed and the paper's coupled gain.  Where no offscreen
-    OpenGL exists the clips are left out with the reason on stderr; the run
-    goes on.
+    the profile's seed and the paper's coupled gain; the two render at the
+    same time.  Where no offscreen OpenGL exists the clips are left out with
+    the reason on stderr; the run goes on.
     """
-    import subprocess
-    import sys
+    return finish_clips(start_clips(out_dir, profile))
 
-    from .profiles import PAPER_BETA
+
+def start_clips(out_dir: Path, profile: Profile) -> list[tuple[Path, Any, Any]]:
+    """Start the :func:`clips` child processes: (path, process, its stderr file) each."""
+    import subprocess
+    import tempfile
 
     if profile.clip_duration <= 0:
         return []
@@ -420,9 +556,31 @@ def clips(out_dir: Path, profile: Profile) -> list[Path]:
                "--amplitude", str(amp), "--duration", str(profile.clip_duration),
                "--seed", str(profile.seed), "--fps", "15", "--width", "640", "--height",
                "400", "--out", str(path)]  # fmt: skip
-        done = subprocess.run(cmd, env=env, capture_output=True, text=True)
-        if done.returncode != 0 or not path.exists():
-            why = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        err = tempfile.TemporaryFile(mode="w+")  # read once the process has ended
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        out.append((path, proc, err))
+    return out
+
+
+def stop_clips(rendering: list[tuple[Path, Any, Any]]) -> None:
+    """End the :func:`start_clips` processes still running (their files are left out)."""
+    for _, proc, err_file in rendering:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        err_file.close()
+
+
+def finish_clips(rendering: list[tuple[Path, Any, Any]]) -> list[Path]:
+    """Wait for the :func:`start_clips` processes; the clips made, in order."""
+    out = []
+    for path, proc, err_file in rendering:
+        proc.wait()
+        with err_file as f:
+            f.seek(0)
+            err = f.read()
+        if proc.returncode != 0 or not path.exists():
+            why = (err.strip().splitlines() or ["no output"])[-1]
             print(f"cip-validate: clip {path.name} left out: {why}", file=sys.stderr)
             continue
         out.append(path)

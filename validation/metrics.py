@@ -8,6 +8,8 @@ paper figure or equation it implements.
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -81,6 +83,27 @@ def _broken_line(lf: np.ndarray, ls: np.ndarray, min_points: int = 3) -> tuple[f
     return best[1], best[2], 10 ** best[3]
 
 
+def _broken_lines(lf: np.ndarray, ls: np.ndarray, min_points: int = 3) -> np.ndarray:
+    """:func:`_broken_line` of every row of ``ls`` (B, len(lf)) at once: (B, 3).
+
+    The same candidate breakpoints in the same order, each solved by one
+    least-squares call for all rows (the first smallest residual wins, as in
+    :func:`_broken_line`); rows agree with it to rounding.
+    """
+    ys = np.asarray(ls, dtype=float).T  # (points, B)
+    best = np.full((ys.shape[1], 4), [np.inf, np.nan, np.nan, np.nan])
+    for k in range(min_points, len(lf) - min_points + 1):
+        for xc in np.linspace(lf[k - 1], lf[k], 5):
+            a = np.column_stack([np.ones_like(lf), np.minimum(lf - xc, 0), np.maximum(lf - xc, 0)])
+            coef, *_ = np.linalg.lstsq(a, ys, rcond=None)  # (3, B)
+            sse = ((a @ coef - ys) ** 2).sum(axis=0)
+            better = sse < best[:, 0]
+            best[better] = np.column_stack([sse, coef[1], coef[2], np.full(ys.shape[1], xc)])[
+                better
+            ]
+    return np.column_stack([best[:, 1], best[:, 2], 10 ** best[:, 3]])
+
+
 def fit_two_power_laws(
     f: np.ndarray,
     s: np.ndarray,
@@ -105,11 +128,11 @@ def fit_two_power_laws(
     lo, hi, fc = _broken_line(lf, ls.mean(axis=0))
     rng = np.random.default_rng(seed)
     boots = []
-    if s.shape[0] > 1:
-        for _ in range(n_bootstrap):
-            pick = rng.integers(0, s.shape[0], s.shape[0])
-            boots.append(_broken_line(lf, ls[pick].mean(axis=0)))
-    b = np.array(boots) if boots else np.full((1, 3), np.nan)
+    if s.shape[0] > 1 and n_bootstrap > 0:
+        # the same resamples, drawn in the same order, fitted at once
+        picks = [rng.integers(0, s.shape[0], s.shape[0]) for _ in range(n_bootstrap)]
+        boots = _broken_lines(lf, np.stack([ls[pick].mean(axis=0) for pick in picks]))
+    b = np.asarray(boots) if len(boots) else np.full((1, 3), np.nan)
     return PowerLawFit(
         slope_low=float(lo), slope_high=float(hi), crossover=float(fc),
         slope_low_se=float(np.std(b[:, 0], ddof=1)) if len(boots) > 1 else float("nan"),
@@ -373,12 +396,18 @@ def stcc(
     syy = _window_comoment(my0, my0, (cy0 * cy0).sum(axis=-1), k, first, g)
     norm = np.sqrt(sxx * syy)
     out = np.empty((*x.shape[:-1], starts.size, lmax + 1))
-    for lag in range(lmax + 1):
+
+    def lagged(lag: int) -> None:
         # every lagged window ends at starts + w + lag <= n - lmax + lag <= n
         my, cy = (my0, cy0) if lag == 0 else _block_stats(y[..., lag:], nblocks, g)
         sxy = _window_comoment(mx, my, (cx * cy).sum(axis=-1), k, first, g)
         with np.errstate(divide="ignore", invalid="ignore"):
             out[..., lag] = sxy / norm
+
+    # one lag per task across threads (numpy releases the GIL); each lag is computed
+    # alone, so R does not depend on the number of threads
+    with ThreadPoolExecutor(min(os.cpu_count() or 1, lmax + 1)) as pool:
+        list(pool.map(lagged, range(lmax + 1)))
     return starts * dt, np.arange(lmax + 1) * dt, out
 
 
@@ -468,16 +497,21 @@ def stcc_significance(window_samples: int, z: float = 3.0) -> float:
     return z / np.sqrt(window_samples)
 
 
-def _window_acf(z: np.ndarray, w: int) -> np.ndarray:
-    """Sample autocorrelations r(j), j = 0..w-1, of each row of ``z`` (rows, w).
+def _window_acf(z: np.ndarray, w: int, max_lag: int | None = None) -> np.ndarray:
+    """Sample autocorrelations r(j), j = 0..max_lag (default w - 1), of each row of ``z``
+    (rows, w).
 
     The standard (biased) estimator: r(j) = sum_{s<w-j} z'_s z'_{s+j} / sum z'^2,
-    z' the row minus its mean; via a zero-padded FFT.
+    z' the row minus its mean; via an FFT zero-padded to at least w + max_lag points
+    (the circular correlation then equals the linear one at every lag returned).
     """
+    from scipy.fft import next_fast_len
+
+    m = w - 1 if max_lag is None else min(int(max_lag), w - 1)
     z = z - z.mean(axis=-1, keepdims=True)
-    nfft = 1 << (2 * w - 1).bit_length()
+    nfft = next_fast_len(w + m, real=True)
     f = np.fft.rfft(z, nfft, axis=-1)
-    ac = np.fft.irfft(f * np.conj(f), nfft, axis=-1)[..., :w]
+    ac = np.fft.irfft(f * np.conj(f), nfft, axis=-1)[..., : m + 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         return ac / ac[..., :1]
 
@@ -510,13 +544,24 @@ def effective_samples(
     lead = x.shape[:-1]
     xf, yf = x.reshape(-1, x.shape[-1]), y.reshape(-1, y.shape[-1])
     out = np.empty((xf.shape[0], starts.size))
-    for i in range(xf.shape[0]):
+
+    def row(i: int) -> None:
         xw = np.lib.stride_tricks.sliding_window_view(xf[i], w)[starts]
         yw = np.lib.stride_tricks.sliding_window_view(yf[i], w)[starts]
-        s = (_window_acf(xw, w)[:, 1 : m + 1] * _window_acf(yw, w)[:, 1 : m + 1] * weight).sum(-1)
+        s = (_window_acf(xw, w, m)[:, 1:] * _window_acf(yw, w, m)[:, 1:] * weight).sum(-1)
         inv = 1.0 / w + 2.0 / w * s
         with np.errstate(divide="ignore", invalid="ignore"):
             out[i] = np.clip(1.0 / inv, 2.0, w)
+
+    # one row per task across threads (the FFTs release the GIL); each row is computed
+    # alone, so the result does not depend on the number of threads
+    threads = min(os.cpu_count() or 1, xf.shape[0])
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(row, range(xf.shape[0])))
+    else:
+        for i in range(xf.shape[0]):
+            row(i)
     return out.reshape(*lead, starts.size)
 
 

@@ -131,16 +131,29 @@ def lyapunov_curve(profile: Profile, threads: int | None) -> dict:
 # ------------------------------------------------------------------ simulations
 #: Simulations shared by every estimator of one run: (model, R, T, amplitude, dt, seed) -> arrays
 _SERIES: dict[tuple, dict[str, np.ndarray]] = {}
+#: Estimates the paper stages share with the robustness stage (same simulations, same
+#: seeds, so the same numbers): RMS samples, the STCC of the paper's window, spectra
+_RMS: dict[tuple, dict] = {}
+_STCC: dict[tuple, tuple] = {}
+_SPECTRA: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
 
 def clear_cache() -> None:
     """Forget the shared simulations (they hold a few hundred MB in the paper profile)."""
-    _SERIES.clear()
+    for cache in (_SERIES, _RMS, _STCC, _SPECTRA):
+        cache.clear()
 
 
 def _batches(n: int, size: int):
     for a in range(0, n, size):
         yield a, min(size, n - a)
+
+
+def _series_key(profile: Profile, model: str, amplitude: float | None = None) -> tuple:
+    """What fixes :func:`series_set`'s simulations (the key of every estimate on them)."""
+    amp = profile.rms_amplitude if amplitude is None else amplitude
+    return (model, profile.peak_realizations, profile.peak_duration, amp, profile.decimate,
+            profile.seed_for("series", model))  # fmt: skip
 
 
 def series_set(
@@ -155,7 +168,7 @@ def series_set(
     """
     amp = profile.rms_amplitude if amplitude is None else amplitude
     seed = profile.seed_for("series", model)
-    key = (model, profile.peak_realizations, profile.peak_duration, amp, profile.decimate, seed)
+    key = _series_key(profile, model, amp)
     if key in _SERIES:
         return _SERIES[key]
     nc = get_model(model).n_controllers
@@ -192,6 +205,10 @@ def rms_samples(profile: Profile, model: str, threads: int | None) -> dict[str, 
     nc = get_model(model).n_controllers
     seed = profile.seed_for("rms", model)
     fracs = profile.robustness_durations
+    key = (model, profile.rms_realizations, profile.rms_duration, profile.rms_amplitude,
+           tuple(fracs), seed)  # fmt: skip
+    if key in _RMS:  # simulated by the RMS stage: the robustness stage re-estimates on them
+        return dict(_RMS[key])
     rms = {f: [] for f in fracs}
     peak = []
     for r0, nb in _batches(profile.rms_realizations, 32):
@@ -205,7 +222,9 @@ def rms_samples(profile: Profile, model: str, threads: int | None) -> dict[str, 
         for f in fracs:
             rms[f].append(metrics.rms(e[:, : max(2, round(f * e.shape[1]))]))
         peak.append(np.max(np.abs(e), axis=-1))
-    return {"rms": {f: np.concatenate(v) for f, v in rms.items()}, "max": np.concatenate(peak)}
+    _RMS[key] = {"rms": {f: np.concatenate(v) for f, v in rms.items()},
+                 "max": np.concatenate(peak)}  # fmt: skip
+    return dict(_RMS[key])
 
 
 # ------------------------------------------------------------------ estimators
@@ -328,11 +347,7 @@ def peak_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
     lmax = max(grid["max_lag"])
     seed = profile.seed_for("robustness", "peaks")
     for window in grid["window"]:
-        stc = {}
-        for m, d in sets.items():
-            t, lags, r = metrics.stcc(d["vt"], d["vb"], dt, window, lmax, profile.stcc_stride)
-            lev = metrics.stcc_significance_bartlett(d["vt"], d["vb"], dt, t, window)
-            stc[m] = (t, lags, r, lev)
+        stc = {m: _stcc_of(profile, m, d, window, lmax) for m, d in sets.items()}
         for max_lag in grid["max_lag"]:
             nl = round(max_lag / dt) + 1
             for frac in grid["duration"]:
@@ -363,6 +378,23 @@ def peak_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
                                 "fractions_coupled": pc.fractions(),
                             })  # fmt: skip
     return rows
+
+
+def _stcc_of(profile: Profile, model: str, d: dict, window: float, max_lag: float) -> tuple:
+    """STCC (t, lags, R) and Bartlett level of one model's series set, all realisations.
+
+    The paper's window (``profile.stcc_window``) is kept for the robustness stage,
+    which re-estimates on it; other windows are computed and dropped.
+    """
+    dt = float(d["dt"])
+    key = (*_series_key(profile, model), window, max_lag, profile.stcc_stride)
+    if key in _STCC:
+        return _STCC[key]
+    t, lags, r = metrics.stcc(d["vt"], d["vb"], dt, window, max_lag, profile.stcc_stride)
+    lev = metrics.stcc_significance_bartlett(d["vt"], d["vb"], dt, t, window)
+    if window == profile.stcc_window:
+        _STCC[key] = (t, lags, r, lev)
+    return t, lags, r, lev
 
 
 def velocity_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
@@ -396,7 +428,7 @@ def spectrum_grid(profile: Profile, threads: int | None, grid: dict) -> list[dic
             for fmax in grid["fmax"]:
                 fits = {}
                 for m, d in sets.items():
-                    f, s = metrics.power_spectrum(d["e"][:, :k], dt, segment=seg)
+                    f, s = _spectrum_of(profile, m, d, k, seg)
                     fits[m] = metrics.fit_two_power_laws(
                         f, s, max(0.05, 4.0 / seg), fmax, n_bootstrap=100,
                         seed=profile.seed_for("robustness", "spectrum"),
@@ -410,6 +442,15 @@ def spectrum_grid(profile: Profile, threads: int | None, grid: dict) -> list[dic
                     }
                 )
     return rows
+
+
+def _spectrum_of(profile: Profile, model: str, d: dict, k: int, segment: float) -> tuple:
+    """Welch spectrum (f, S) of the first ``k`` samples of one model's balancing errors,
+    computed once per run (the paper table, its figure and the robustness grid share it)."""
+    key = (*_series_key(profile, model), k, segment)
+    if key not in _SPECTRA:
+        _SPECTRA[key] = metrics.power_spectrum(d["e"][:, :k], float(d["dt"]), segment=segment)
+    return _SPECTRA[key]
 
 
 def laminar_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
@@ -603,7 +644,8 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
     sp = spectrum_grid(profile, threads, g)[0]
     fs, fc = sp["single"], sp["coupled"]
     for m in MODEL_NAMES:
-        f, s = metrics.power_spectrum(sets[m]["e"], dt, segment=profile.peak_duration / 4)
+        f, s = _spectrum_of(profile, m, sets[m], sets[m]["e"].shape[1],
+                            profile.peak_duration / 4)  # fmt: skip
         data[f"pwsp_{m}"] = {"f": f, "S": s.mean(axis=0),
                              "fit": metrics.PowerLawFit(**sp[m])}  # fmt: skip
         # the realisations' spread (the mean is set by the largest ones): for the figure
