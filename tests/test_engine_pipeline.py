@@ -129,3 +129,35 @@ def test_a_baseline_of_another_engine_is_refused(tmp_path, capsys) -> None:
     assert main([*argv, "--integrator", "RK4"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "was made with engine 'mujoco'" in err[0]
+
+
+@pytest.mark.parametrize(
+    ("name", "method", "option", "why"),
+    [
+        ("reduced", "simulate", "physical", "does not apply to it"),
+        ("reduced", "lyapunov", "mj_model", "does not apply to it"),
+        ("reduced", "simulate", "amplitde", "is not an engine option"),
+        ("mujoco", "simulate", "stepper", "does not apply to it"),
+        ("mujoco", "lyapunov", "renorm_interval", "is not an engine option"),
+    ],
+)
+def test_an_option_the_engine_does_not_take_is_one_line_naming_it(name, method, option, why):
+    """The engine contract is typed: nothing a caller passes is silently dropped."""
+    from cipcore.params import ParameterError
+
+    eng = get_engine(name)
+    p = BalanceParams(beta=BETA["single"])
+    with pytest.raises(ParameterError) as exc:
+        getattr(eng, method)("single", p, 1.0, 1, 0, **{option: None})
+    text = str(exc.value)
+    assert "\n" not in text and f"option {option!r} {why}" in text and name in text
+
+
+def test_the_reference_runner_refuses_rigid_body_parameters() -> None:
+    from cip.model import CIPParams
+    from cipcore.params import ParameterError
+
+    p = BalanceParams(beta=BETA["single"])
+    with pytest.raises(ParameterError, match="option 'physical' does not apply"):
+        get_engine("reduced").runner("single", p, 1, 1e-4, physical=CIPParams.from_reduced(p))
+    assert get_engine("reduced").runner("single", p, 1, 1e-4).n_realizations == 1
