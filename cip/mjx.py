@@ -50,11 +50,12 @@ compile at load 9); the batch padded to :func:`bucket` rows, so batch sizes 1-4,
 5-8, 9-16, ... share one, and kept across processes by JAX's persistent
 compilation cache (:func:`cache_dir`); each compile's time is appended to
 :data:`COMPILE_LOG`. The cache saves XLA's backend compile only: tracing and
-lowering ``mjx.step`` remain. Measured (coupled, 100-step chunks, ``python
-benchmarks/bench_engines.py --engines mjx --realizations 3,4,8 --duration 0.2``
-twice with an empty ``XDG_CACHE_HOME``, 2 cores at load 23-29): first process
-75.6 s (4 rows) and 74.0 s (8 rows), batch 4 after batch 3 0.18 s (nothing
-compiled); second process 28.3 s and 20.8 s (cache hits).
+lowering ``mjx.step`` remain. Measured while the model was a constant (coupled,
+100-step chunks, ``python benchmarks/bench_engines.py --engines mjx
+--realizations 3,4,8 --duration 0.2`` twice with an empty ``XDG_CACHE_HOME``, 2
+cores at load 23-29): first process 75.6 s (4 rows) and 74.0 s (8 rows), batch 4
+after batch 3 0.18 s (nothing compiled); second process 28.3 s and 20.8 s (cache
+hits).
 """
 
 from __future__ import annotations
