@@ -15,7 +15,13 @@ from typing import Any, Unpack
 
 import numpy as np
 
-from cipcore.engine import Capabilities, LyapunovOptions, SimulateOptions
+from cipcore.engine import (
+    Capabilities,
+    LyapunovOptions,
+    SimulateOptions,
+    check_options,
+    keyword_options,
+)
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
@@ -27,6 +33,9 @@ from .mjcf_params import INTEGRATOR_NAMES, ModelMapping
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
 from .simulate import simulate_full
+
+#: simulate_full's options that the engine sets itself
+EXCLUDED = ("engine_name",)
 
 
 class RigidBodyChunks:
@@ -148,6 +157,7 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Unpack[SimulateOptions],
     ) -> Trajectory:
+        check_options(self.name, "simulate", options, keyword_options(simulate_full, EXCLUDED))
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         options.setdefault("backend", self._backend())
@@ -168,6 +178,7 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult:
+        check_options(self.name, "lyapunov", options, keyword_options(lyapunov_full))
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         options.setdefault("backend", self._backend())

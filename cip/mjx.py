@@ -19,30 +19,49 @@ Two MJX facts this module works around (measured with MJX 3.17 and MuJoCo 4.0):
 
 MJX raises no MuJoCo warnings: divergence is detected from non-finite states.
 
-Its floor against the exact twin (``benchmarks/twin_floor.py --engines mjx``,
-1e-6 m, 2 realisations x 10 s, seed 1): 1.1e-11 single (Euler, implicitfast,
-RK4), but 1.0e-6 coupled with the rod's stretch 5 times off the twin's.  The
-constraint solver stops at the model file's ``opt.tolerance`` (1e-8) before it
-iterates: at small amplitudes the warm start already meets that absolute
-criterion, whereas MuJoCo on the CPU always takes a Newton iteration (exact for
-the one rod row).  With ``opt.tolerance = 0`` MJX matches MuJoCo to 1.7e-16 and
-the twin to 1.4e-11 (1 s, seed 1).  The engine runs the file as written, so its
-declared tolerances are that measured floor (a finding about MJX, not hidden).
+The constraint solve (a declared discretisation setting, :data:`SOLVER`): MJX
+runs MuJoCo's Newton solver for exactly one iteration per step
+(``opt.iterations = 1``, :func:`solver_model`), whatever the model file's
+``iterations`` and ``tolerance`` say.  That is what MuJoCo on the CPU does with
+the CIP: its Newton loop always takes one iteration before testing the
+tolerance, and for the rod's one equality row (a quadratic cost) that iteration
+is the exact solution (measured: ``mjData.solver_niter`` is 1 at every step, at
+1e-8 m and 1e-4 m).  MJX's ``while_loop`` instead tests the tolerance *before*
+iterating, so with the file's ``tolerance`` (1e-12) and a small balancing error
+the warm start already passes the absolute test and no iteration is taken
+(measured, coupled, 1 s, 2 realisations, seed 1: relative L2 distance to the
+twin 4.2e-4 at 1e-8 m, 1.2e-6 at 1e-6 m, the rod's stretch 3e3 and 7.7 times
+off the twin's).  With one iteration: 1.75e-9, 1.3e-11 and 8.6e-9 at 1e-8,
+1e-6 and 1e-4 m (the rod's stretch 1.1e-2, 8.5e-5, 3.0e-6 off), and 1.0e-12,
+5.8e-12 and 1.1e-16 from MuJoCo on the CPU: bit for bit what
+``opt.tolerance = 0`` (the file's 50 iterations) gives, at 1/60 of its cost.
+The single model has no constraint row, so the setting changes nothing there.
 
-Compilation: one executable per (model, padded batch, chunk length), the batch
-padded to :func:`bucket` rows, so batch sizes 1-4, 5-8, 9-16, ... share one, and
-kept across processes by JAX's persistent compilation cache (:func:`cache_dir`);
-each compile's time is appended to :data:`COMPILE_LOG`.  The cache saves XLA's
-backend compile only: tracing and lowering ``mjx.step`` remain.  Measured (coupled,
-100-step chunks, ``python benchmarks/bench_engines.py --engines mjx --realizations
-3,4,8 --duration 0.2`` twice with an empty ``XDG_CACHE_HOME``, 2 cores at load
-23-29): first process 75.6 s (4 rows) and 74.0 s (8 rows), batch 4 after batch 3
-0.18 s (nothing compiled); second process 28.3 s and 20.8 s (cache hits).
+Its floor against the exact twin (``benchmarks/twin_floor.py --engines mjx``,
+1e-6 m, 4 realisations x 10 s, seed 1) is MuJoCo's: the same tolerances hold.
+
+Compilation: one executable per (model structure, padded batch, chunk length):
+the ``mjx.Model`` is an argument of the compiled chunk, so models that differ
+only in values (masses, lengths, damping, gravity, the time step: every model
+edit of the fault catalogue but the integrator) share one executable (measured:
+a coupled model with gravity, cart damping and length faults after the
+unmodified one compiled nothing new, 0.4-0.8 s each against 97 s for the first
+compile at load 9); the batch padded to :func:`bucket` rows, so batch sizes 1-4,
+5-8, 9-16, ... share one, and kept across processes by JAX's persistent
+compilation cache (:func:`cache_dir`); each compile's time is appended to
+:data:`COMPILE_LOG`. The cache saves XLA's backend compile only: tracing and
+lowering ``mjx.step`` remain. Measured while the model was a constant (coupled,
+100-step chunks, ``python benchmarks/bench_engines.py --engines mjx
+--realizations 3,4,8 --duration 0.2`` twice with an empty ``XDG_CACHE_HOME``, 2
+cores at load 23-29): first process 75.6 s (4 rows) and 74.0 s (8 rows), batch 4
+after batch 3 0.18 s (nothing compiled); second process 28.3 s and 20.8 s (cache
+hits).
 """
 
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import io
 import os
@@ -62,10 +81,26 @@ MIN_BUCKET = 4
 #: above this many rows the buckets are multiples of it instead of powers of two
 BUCKET_STEP = 1024
 
-_CHUNK_FNS: dict[str, Any] = {}  # model hash -> (jit(vmap(chunk)), jax.numpy)
-_COMPILED: dict[tuple[str, int, int], Any] = {}  # (model hash, rows, steps) -> executable
+_CHUNK_FNS: dict[str, Any] = {}  # "chunk" -> jit(vmap(chunk)), built once
+_MODELS: dict[str, Any] = {}  # model hash -> mjx.Model
+_COMPILED: dict[tuple, Any] = {}  # (model structure, rows, steps) -> executable
 #: one entry per compiled chunk shape, in order: model hash, rows, steps, seconds, cache
 COMPILE_LOG: list[dict[str, Any]] = []
+
+
+#: MJX's declared constraint solve per step (module docstring): Newton, one iteration
+SOLVER = "Newton, one iteration per step (opt.iterations = 1), as MuJoCo on the CPU takes"
+SOLVER_ITERATIONS = 1
+
+
+def solver_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    """A copy of ``model`` with MJX's declared constraint solve (:data:`SOLVER`): MuJoCo's
+    Newton solver for exactly :data:`SOLVER_ITERATIONS` iteration per step, the file's
+    ``tolerance`` then unused (MJX tests it only between iterations)."""
+    m = copy.deepcopy(model)
+    m.opt.solver = int(mujoco.mjtSolver.mjSOL_NEWTON)
+    m.opt.iterations = SOLVER_ITERATIONS
+    return m
 
 
 def bucket(n_realizations: int) -> int:
@@ -103,10 +138,8 @@ def _model_key(model: mujoco.MjModel) -> str:
     return hashlib.sha256(buf.tobytes()).hexdigest()
 
 
-def _chunk_fn(key: str, model: mujoco.MjModel):
-    """jit(vmap(scan of mjx.step over a chunk)) for ``model``, built once per model."""
-    if key in _CHUNK_FNS:
-        return _CHUNK_FNS[key]
+def _mjx() -> tuple[Any, Any, Any]:
+    """(jax, jax.numpy, mujoco.mjx), JAX in float64 with the persistent cache."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -117,11 +150,19 @@ def _chunk_fn(key: str, model: mujoco.MjModel):
         # mujoco.mjx prints "Failed to import warp" on stdout when warp is absent
         # (its optional warp path); keep stdout clean for --json output.
         from mujoco import mjx
+    return jax, jnp, mjx
 
-    mx = mjx.put_model(model)
-    d0 = mjx.make_data(mx)
 
-    def chunk(qpos, qvel, warm, ctrl):
+def _chunk_fn():
+    """jit(vmap(scan of mjx.step over a chunk)), the MJX model an argument shared by the
+    rows (built once per process)."""
+    if _CHUNK_FNS:
+        return _CHUNK_FNS["chunk"]
+    jax, _, mjx = _mjx()
+
+    def chunk(mx, qpos, qvel, warm, ctrl):
+        d0 = mjx.make_data(mx)
+
         def body(carry, u):
             q, v, w = carry
             d = mjx.step(mx, d0.replace(qpos=q, qvel=v, qacc_warmstart=w, ctrl=u))
@@ -130,20 +171,41 @@ def _chunk_fn(key: str, model: mujoco.MjModel):
         (_, _, w), (qs, vs) = jax.lax.scan(body, (qpos, qvel, warm), ctrl)
         return qs, vs, w
 
-    _CHUNK_FNS[key] = (jax.jit(jax.vmap(chunk)), jnp)
-    return _CHUNK_FNS[key]
+    _CHUNK_FNS["chunk"] = jax.jit(jax.vmap(chunk, in_axes=(None, 0, 0, 0, 0)))
+    return _CHUNK_FNS["chunk"]
+
+
+def mjx_model(model: mujoco.MjModel) -> Any:
+    """The ``mjx.Model`` of ``model`` (float64 arrays), built once per model."""
+    key = _model_key(model)
+    if key not in _MODELS:
+        _, _, mjx = _mjx()
+        _MODELS[key] = mjx.put_model(model)
+    return _MODELS[key]
+
+
+def _structure(mx: Any) -> tuple:
+    """What an executable depends on: the model's static fields (sizes, topology, the
+    integrator, the solver setting) and its arrays' shapes, not their values."""
+    import jax
+
+    leaves, tree = jax.tree_util.tree_flatten(mx)
+    return tree, tuple((np.shape(x), str(np.asarray(x).dtype)) for x in leaves)
 
 
 def compiled_chunk(model: mujoco.MjModel, rows: int, steps: int):
-    """The executable advancing ``rows`` realisations by ``steps`` steps (compiled once
-    per shape and process, loaded from the persistent cache when another process
-    compiled it); its compile time goes to :data:`COMPILE_LOG`."""
-    key = _model_key(model)
-    shape = (key, rows, steps)
+    """(the executable advancing ``rows`` realisations by ``steps`` steps, the MJX model
+    it takes).  The model's values are an argument: models that differ only in values
+    (masses, lengths, damping, gravity, time step: the model edits of the fault catalogue)
+    share one executable; compiled once per structure, shape and process, loaded from the
+    persistent cache when another process compiled it; its compile time goes to
+    :data:`COMPILE_LOG`."""
+    mx = mjx_model(model)
+    shape = (_structure(mx), rows, steps)
     if shape in _COMPILED:
-        return _COMPILED[shape]
-    fn, jnp = _chunk_fn(key, model)
-    import jax
+        return _COMPILED[shape], mx
+    fn = _chunk_fn()
+    jax, jnp, _ = _mjx()
 
     hits = []
     listener = lambda event, **kw: hits.append(event)  # noqa: E731
@@ -152,6 +214,7 @@ def compiled_chunk(model: mujoco.MjModel, rows: int, steps: int):
     t0 = time.perf_counter()
     try:
         _COMPILED[shape] = fn.lower(
+            mx,
             jax.ShapeDtypeStruct((rows, model.nq), f64),
             jax.ShapeDtypeStruct((rows, model.nv), f64),
             jax.ShapeDtypeStruct((rows, model.nv), f64),
@@ -161,13 +224,15 @@ def compiled_chunk(model: mujoco.MjModel, rows: int, steps: int):
         seconds = time.perf_counter() - t0
         jax.monitoring.unregister_event_listener(listener)
     cache = "hit" if "/jax/compilation_cache/cache_hits" in hits else "miss"
-    COMPILE_LOG.append({"model": key[:12], "rows": rows, "steps": steps,
+    COMPILE_LOG.append({"model": _model_key(model)[:12], "rows": rows, "steps": steps,
                         "seconds": seconds, "persistent_cache": cache})  # fmt: skip
-    return _COMPILED[shape]
+    return _COMPILED[shape], mx
 
 
 class MJXRollout:
     """:class:`cip.runner.RolloutBackend` running MJX (float64) over a delay chunk.
+
+    It steps :func:`solver_model` of the model it is given (the declared solver setting).
 
     The batch is padded to :func:`bucket` rows (copies of the first realisation, whose
     results are dropped), so every batch size of a bucket runs one compiled executable;
@@ -176,7 +241,7 @@ class MJXRollout:
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        self.model = model
+        self.model = solver_model(model)
         self.nq, self.nv, self.dt = model.nq, model.nv, float(model.opt.timestep)
         self.n, self.rows = n_realizations, bucket(n_realizations)
         self.warm = np.zeros((self.rows, model.nv))
@@ -189,8 +254,9 @@ class MJXRollout:
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         nq, nv, n_real = self.nq, self.nv, self.n
         n = ctrl.shape[1]
-        fn = compiled_chunk(self.model, self.rows, n)
+        fn, mx = compiled_chunk(self.model, self.rows, n)
         qs, vs, warm = fn(
+            mx,
             self._pad(state[:, 1 : 1 + nq]),
             self._pad(state[:, 1 + nq : 1 + nq + nv]),
             self.warm,
@@ -220,14 +286,14 @@ ENGINE = RigidBodyEngine(
         rod="soft",
         twin="the model file's terms, its soft rod (solref/solimp) and its integrator "
         "(Euler, implicitfast or RK4) as MuJoCo defines them",
+        solver=SOLVER,
     ),
     backend=lambda: MJXRollout,
     integrators=("Euler", "implicitfast", "RK4"),
-    # the single model's floor is MuJoCo's (1.1e-11); the coupled model's is the
-    # solver-tolerance floor (module docstring): 1.0e-6 against the twin, the rod's
-    # stretch 5.3 times off; tolerances about ten times those (MuJoCo's 1e-9 single)
-    twin_tolerance={"single": 1e-9, "coupled": 1e-5},
-    rod_tolerance=50.0,
+    # its floor against the twin is MuJoCo's with the declared solver (module docstring):
+    # MuJoCo's tolerances
+    twin_tolerance=1e-9,
+    rod_tolerance=1e-3,
     requires=("jax", "mujoco.mjx"),
     max_threads=1,
     notes="MuJoCo XLA: jit(vmap(scan(mjx.step))) over a delay chunk, float64",

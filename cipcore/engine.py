@@ -19,13 +19,15 @@ entry in :data:`cipcore.registry.ENGINES` (or a ``cipval.engines`` entry point).
 
 from __future__ import annotations
 
+import inspect
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol, TypedDict, Unpack, runtime_checkable
 
 import numpy as np
 
 from .models import BalanceModel
-from .params import BalanceParams
+from .params import BalanceParams, ParameterError
 from .results import LyapunovResult
 from .schema import Trajectory
 
@@ -60,6 +62,9 @@ class Capabilities:
     twin : a short statement of how the engine's exact linear twin is built
         (:mod:`reduced.twin`), or None when no exact twin exists; such an engine
         is held to a declared, justified tolerance that the report states.
+    solver : the constraint-solver setting the engine runs at where it is not the
+        model file's (e.g. a fixed number of iterations); None: the file's, or the
+        engine's own solver that ``rod`` and ``twin`` describe.
     """
 
     precision: str
@@ -73,6 +78,7 @@ class Capabilities:
     integrator: str = "Euler"
     rod: str = "soft"
     twin: str | None = None
+    solver: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -118,6 +124,30 @@ class LyapunovOptions(TypedDict, total=False):
     mj_model: Any
     backend: Any
     stepper: str
+
+
+def keyword_options(fn: Callable[..., Any], exclude: Iterable[str] = ()) -> frozenset[str]:
+    """The keyword-only parameters of ``fn`` (the options an engine method passes on to
+    it), less ``exclude`` (those the engine sets itself)."""
+    kinds = (inspect.Parameter.KEYWORD_ONLY,)
+    params = inspect.signature(fn).parameters.values()
+    return frozenset(p.name for p in params if p.kind in kinds) - set(exclude)
+
+
+def check_options(engine: str, method: str, options: Mapping[str, Any], accepted: Iterable[str]):
+    """Refuse, in one line (:class:`cipcore.params.ParameterError`), an option that
+    ``engine``'s ``method`` does not take: unknown to every engine, or one that does not
+    apply to this one (e.g. a rigid body's ``physical`` given to the reduced model)."""
+    accepted = frozenset(accepted)
+    for key in options:
+        if key in accepted:
+            continue
+        known = SimulateOptions.__optional_keys__ | LyapunovOptions.__optional_keys__
+        why = "does not apply to it" if key in known else "is not an engine option"
+        raise ParameterError(
+            f"engine {engine!r} {method}: option {key!r} {why} "
+            f"(it takes: {', '.join(sorted(accepted))})"
+        )
 
 
 @runtime_checkable

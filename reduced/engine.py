@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from cipcore.engine import Capabilities
+from cipcore.engine import Capabilities, check_options, keyword_options
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
@@ -83,6 +83,8 @@ class ReducedEngine:
         *,
         physical: Any = None,
     ) -> ReducedChunks:
+        if physical is not None:
+            check_options(self.name, "runner", {"physical": physical}, ())
         return self.chunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
 
     def simulate(
@@ -94,7 +96,7 @@ class ReducedEngine:
         seed: int = 0,
         **options: Any,
     ) -> Trajectory:
-        options.pop("physical", None)
+        check_options(self.name, "simulate", options, keyword_options(self.simulate_fn))
         return self.simulate_fn(
             get_model(model).name, params, duration, n_realizations, seed, **options
         )
@@ -108,7 +110,7 @@ class ReducedEngine:
         seed: int = 0,
         **options: Any,
     ) -> LyapunovResult:
-        options.pop("physical", None)
+        check_options(self.name, "lyapunov", options, keyword_options(lyapunov))
         return lyapunov(get_model(model).name, params, duration, n_realizations, seed, **options)
 
 

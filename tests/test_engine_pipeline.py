@@ -53,29 +53,24 @@ def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
     assert d < eng.twin_tolerance_for(model)
 
 
-@pytest.mark.parametrize("name", ["mujoco", "drake"])
+@pytest.mark.parametrize("name", ["mujoco", "mjx", "drake", "mujoco-warp"])
 @pytest.mark.parametrize(
     ("kind", "size"), [("delay_late", 1), ("cart_damping", 0.01), ("pendulum_length", 0.005)]
 )
 def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: str, size: float):
     """A one-step-late delay, +1 % cart damping and +0.5 % pole length in the single model,
-    injected into the engine, fail the checks `run --engine` and `engines` both run."""
+    injected into the engine, fail the checks `run --engine` and `engines` both run
+    (:func:`validation.agreement.series_checks` runs them for both).  MJX reuses its
+    compiled step for the model edits; MuJoCo Warp runs on warp's CPU device only with
+    CIPVAL_WARP_DEVICE=cpu (else skipped with the reason)."""
     engine_or_skip(name)
     fault = make_fault(kind, size)
     checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine=name)
     failed = [c.name for c in checks if c.status == "fail"]
     assert failed, f"{kind} {size} in {name} was not flagged"
+    assert "twin.trajectory.single" in failed
     if kind == "delay_late":
         assert "delay.single" in failed
-
-
-def test_one_step_late_delay_fails_mjx() -> None:
-    """MJX too (a control edit: the compiled step is reused, no new compilation)."""
-    engine_or_skip("mjx")
-    fault = make_fault("delay_late", 1)
-    checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine="mjx")
-    failed = [c.name for c in checks if c.status == "fail"]
-    assert "delay.single" in failed and "twin.trajectory.single" in failed
 
 
 def test_unmodified_drake_passes_every_direct_check() -> None:
@@ -123,3 +118,52 @@ def test_a_baseline_of_another_engine_is_refused(tmp_path, capsys) -> None:
     assert main([*argv, "--integrator", "RK4"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "was made with engine 'mujoco'" in err[0]
+
+
+@pytest.mark.parametrize(
+    ("name", "method", "option", "why"),
+    [
+        ("reduced", "simulate", "physical", "does not apply to it"),
+        ("reduced", "lyapunov", "mj_model", "does not apply to it"),
+        ("reduced", "simulate", "amplitde", "is not an engine option"),
+        ("mujoco", "simulate", "stepper", "does not apply to it"),
+        ("mujoco", "lyapunov", "renorm_interval", "is not an engine option"),
+    ],
+)
+def test_an_option_the_engine_does_not_take_is_one_line_naming_it(name, method, option, why):
+    """The engine contract is typed: nothing a caller passes is silently dropped."""
+    from cipcore.params import ParameterError
+
+    eng = get_engine(name)
+    p = BalanceParams(beta=BETA["single"])
+    with pytest.raises(ParameterError) as exc:
+        getattr(eng, method)("single", p, 1.0, 1, 0, **{option: None})
+    text = str(exc.value)
+    assert "\n" not in text and f"option {option!r} {why}" in text and name in text
+
+
+def test_the_reference_runner_refuses_rigid_body_parameters() -> None:
+    from cip.model import CIPParams
+    from cipcore.params import ParameterError
+
+    p = BalanceParams(beta=BETA["single"])
+    with pytest.raises(ParameterError, match="option 'physical' does not apply"):
+        get_engine("reduced").runner("single", p, 1, 1e-4, physical=CIPParams.from_reduced(p))
+    assert get_engine("reduced").runner("single", p, 1, 1e-4).n_realizations == 1
+
+
+def test_mjx_declares_its_constraint_solve_and_meets_mujoco_at_small_amplitude() -> None:
+    """MJX runs one Newton iteration per step (declared in its capabilities), as MuJoCo on
+    the CPU takes; with the file's tolerance it took none at 1e-8 m (4e-4 off the twin)."""
+    eng = engine_or_skip("mjx")
+    from cip.mjx import SOLVER_ITERATIONS, solver_model
+
+    m = model_file("coupled")
+    s = solver_model(m)
+    assert s.opt.iterations == SOLVER_ITERATIONS == 1 and m.opt.iterations != 1
+    assert eng.capabilities.solver and "one iteration" in eng.capabilities.solver
+    p = BalanceParams(beta=BETA["coupled"])
+    kw = {"amplitude": 1e-8, "fields": ("balancing_error",), "mj_model": m}
+    a = eng.simulate("coupled", p, 0.3, 2, 1, **kw)["balancing_error"]
+    b = get_engine("mujoco").simulate("coupled", p, 0.3, 2, 1, **kw)["balancing_error"]
+    assert relative_l2(a, b) < 1e-9

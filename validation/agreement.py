@@ -383,7 +383,11 @@ def series_checks(
         )  # fmt: skip
         full, red = run_pair(*args)
         twin = run_twin(*args)
-        env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS)
+        env = run_envelope_twin(
+            model, beta, profile.amplitude, profile.series_duration,
+            profile.series_realizations, seed, profile.decimate, threads,
+            fields=SERIES_FIELDS, integrator=twin_integrator(model, files, engine, integrator),
+        )  # fmt: skip
         mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
         mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
         mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
@@ -453,7 +457,11 @@ def amplitude_scan(
             )  # fmt: skip
             full, red = run_pair(*args)
             twin = run_twin(*args)
-            env = run_envelope_twin(*args[:8], fields=("balancing_error",))
+            env = run_envelope_twin(
+                model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
+                profile.decimate, threads, fields=("balancing_error",),
+                integrator=twin_integrator(model, files, engine, integrator),
+            )  # fmt: skip
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
             et, ee = twin["balancing_error"], env["balancing_error"]
             rel = trajectory_distance(full, red)
@@ -704,6 +712,21 @@ def measured_delay(model: str, params: BalanceParams, physical, mj_model, backen
         vels.append(np.concatenate(chunks))
     moved = np.flatnonzero(np.abs(vels[0] - vels[1]).max(axis=1) > 0)
     return int(moved[0]) if moved.size else -1
+
+
+def twin_integrator(
+    model: str, files: dict[str, str] | None, engine: str, integrator: str | None
+) -> str:
+    """The stepper of ``engine``'s exact twin for ``model`` run with ``integrator``.
+
+    The specification's envelope twin steps with it, so that the agreement margins
+    admit the rigid body's known terms and not the integrator's own difference from
+    the reduced model's semi-implicit Euler step.
+    """
+    from cip.mjcf_params import read_mapping
+
+    mapping = read_mapping(model_file(model, files, integrator))
+    return rigid_engine(engine).twin_terms(mapping)["integrator"]
 
 
 def instrument_checks(

@@ -108,8 +108,9 @@ def check_value(c: dict) -> str:
     if sub is not None:
         name, d = sub
         return f"worst {name}: " + check_value({"values": d})
-    if "largest_agreeing_angle" in v:
-        return "largest agreeing |theta| = " + _fmt(min(v["largest_agreeing_angle"].values()))
+    if "largest_agreeing_angle" in v:  # None: a metric agreeing at no amplitude scanned
+        angles = [a for a in v["largest_agreeing_angle"].values() if a is not None]
+        return "largest agreeing |theta| = " + (_fmt(min(angles)) if angles else "none")
     if "disagreeing" in v:
         return f"{len(v['disagreeing'])} of {len(v.get('far_amplitudes', []))} disagree"
     for key in ("slope_low", "slope_high"):

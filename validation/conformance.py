@@ -248,13 +248,16 @@ def conformance_checks(files: dict[str, str] | None, models: tuple[str, ...]) ->
     ]
 
 
-def envelope_twin_terms(model: str, params: BalanceParams) -> dict:
+def envelope_twin_terms(model: str, params: BalanceParams, integrator: str = "Euler") -> dict:
     """Keyword arguments of :class:`reduced.twin.TwinParams` at the specification's corner.
 
     The controller's alpha, gamma and dt, m/M = ``MASS_RATIO_MAX``, kappa =
     ``KAPPA_MAX``; coupled: the softest conforming rod (stiffness 1e4 alpha,
     damping 2 / (dmax tc) at tc = 2e-3 s and dmax = 0.99, regulariser (1 - d)/d
     times the tendon's inverse weight ~ 2 / m, per unit M: 2 (1 - d) / (d m/M)).
+    ``integrator``: the stepper of the engine's own twin (MuJoCo's names), a
+    physical setting of the run, so the envelope admits its difference from the
+    reduced model's semi-implicit Euler as a known term.
     """
     from cipcore.models import get_model
 
@@ -265,6 +268,7 @@ def envelope_twin_terms(model: str, params: BalanceParams) -> dict:
         "mass_ratio": MASS_RATIO_MAX,
         "kappa": KAPPA_MAX,
         "dt": params.dt,
+        "integrator": integrator,
     }
     if get_model(model).n_controllers == 2:
         d = ROD_IMPEDANCE_MIN
@@ -316,12 +320,14 @@ def run_envelope_twin(
     decimate: int,
     threads: int | None,
     fields: tuple[str, ...],
+    integrator: str = "Euler",
 ):
-    """The twin at the specification's corner under the same noise as the file's twin."""
+    """The twin at the specification's corner under the same noise as the file's twin,
+    stepped by ``integrator`` (the engine twin's)."""
     from reduced.twin import TwinParams, simulate_twin
 
     p = BalanceParams(beta=beta)
-    tw = TwinParams(**envelope_twin_terms(model, p))
+    tw = TwinParams(**envelope_twin_terms(model, p, integrator))
     return simulate_twin(
         model, p, tw, duration, n, seed, amplitude=amplitude, decimate=decimate,
         fields=fields, threads=threads,

@@ -94,7 +94,8 @@ def lag_residuals(engine: Any, integrator: str | None = None) -> tuple[int, dict
     physical = CIPParams.from_reduced(p, mass_ratio=1e-7)
     if integrator is not None:
         physical = replace(physical, integrator=integrator)
-    runner = engine.runner("single", p, 1, 1e-4, physical=physical)
+    rigid = engine.capabilities.rigid_body  # the reference has no rigid body to set
+    runner = engine.runner("single", p, 1, 1e-4, **({"physical": physical} if rigid else {}))
     chunks = []
     for k in range(0, n_steps, runner.max_chunk if runner.max_chunk < n_steps else n_steps):
         chunks.append(runner.advance(xi[:, k : k + min(runner.max_chunk, n_steps - k)]))

@@ -284,6 +284,8 @@ def markdown(results: dict[str, Any]) -> str:
         lines += ["", f"## {r['engine']}", ""]
         if c.get("twin"):
             lines.append(f"Exact twin: {c['twin']}.")
+        if c.get("solver"):
+            lines.append(f"Constraint solve (declared, not the model file's): {c['solver']}.")
         elif c["rigid_body"]:
             lines.append(f"No exact twin declared: held to the declared twin tolerance "
                          f"{r.get('twin_tolerance')}.")  # fmt: skip
