@@ -53,7 +53,9 @@ def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
     assert d < eng.twin_tolerance_for(model)
 
 
-@pytest.mark.parametrize("name", ["mujoco", "mjx", "drake", "mujoco-warp"])
+@pytest.mark.parametrize(
+    "name", ["mujoco", "mjx", "drake", pytest.param("mujoco-warp", marks=pytest.mark.warp)]
+)
 @pytest.mark.parametrize(
     ("kind", "size"), [("delay_late", 1), ("cart_damping", 0.01), ("pendulum_length", 0.005)]
 )
