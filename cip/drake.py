@@ -306,6 +306,7 @@ ENGINE = RigidBodyEngine(
     # apart: measured 1.4 % against the twin; 10 % leaves a factor 7 and still flags a
     # stretch off by one part in ten
     rod_tolerance=0.1,
-    max_threads=None,  # "threads" are worker processes (pydrake's step holds the GIL)
+    max_threads=None,
+    backend_workers=True,  # "threads" are worker processes (pydrake's step holds the GIL)
     notes="Drake MultibodyPlant, discrete SAP, rod as a distance constraint",
 )

@@ -9,12 +9,14 @@ states over a delay chunk.  :data:`MUJOCO` is MuJoCo on the CPU.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Unpack
 
 import numpy as np
 
+from cipcore.driver import default_threads
 from cipcore.engine import (
     Capabilities,
     LyapunovOptions,
@@ -36,6 +38,13 @@ from .simulate import simulate_full
 
 #: simulate_full's options that the engine sets itself
 EXCLUDED = ("engine_name",)
+
+
+def _with_workers(
+    backend: type[RolloutBackend], workers: int, model: Any, n_realizations: int, threads: int
+) -> RolloutBackend:
+    """``backend`` built with ``workers`` workers, whatever thread count the runner passes."""
+    return backend(model, n_realizations, workers)
 
 
 class RigidBodyChunks:
@@ -66,7 +75,11 @@ class RigidBodyEngine:
     the modules it needs, checked by :meth:`unavailable`; ``probe`` (optional)
     returns a reason the engine cannot run here (e.g. no GPU); ``max_threads``
     caps the realisation blocks run concurrently (1 for engines that batch all
-    realisations in one call).
+    realisations in one call); ``backend_workers`` says the backend splits the
+    realisations across workers of its own (Drake's worker processes): the
+    drivers then run one block of every realisation and hand ``threads`` to the
+    backend as its worker count, instead of stepping blocks on threads that the
+    backend's GIL-holding step would serialise.
 
     What the validation needs to know about the discretisation: ``integrators``
     are the MuJoCo integrators the engine steps as the model file's ``<option
@@ -87,6 +100,7 @@ class RigidBodyEngine:
     requires: tuple[str, ...] = ()
     probe: Any = None
     max_threads: int | None = None
+    backend_workers: bool = False
     linearizer: Any = None
     notes: str = ""
     integrators: tuple[str, ...] = ("Euler",)
@@ -148,6 +162,19 @@ class RigidBodyEngine:
         )  # fmt: skip
         return RigidBodyChunks(r)
 
+    def _place_threads(self, options: dict[str, Any]) -> None:
+        """Set the drivers' ``threads`` and ``backend`` options in place: capped at
+        ``max_threads``; for a backend with workers of its own, one driver block and
+        ``threads`` workers in the backend (the same numbers for any count)."""
+        if self.max_threads is not None:
+            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
+        backend = options.get("backend") or self._backend()
+        if self.backend_workers:
+            workers = options.get("threads") or default_threads()
+            backend = functools.partial(_with_workers, backend, workers)
+            options["threads"] = 1
+        options["backend"] = backend
+
     def simulate(
         self,
         model: BalanceModel | str,
@@ -158,9 +185,7 @@ class RigidBodyEngine:
         **options: Unpack[SimulateOptions],
     ) -> Trajectory:
         check_options(self.name, "simulate", options, keyword_options(simulate_full, EXCLUDED))
-        if self.max_threads is not None:
-            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
-        options.setdefault("backend", self._backend())
+        self._place_threads(options)
         tr = simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
             engine_name=self.name, **options,
@@ -179,9 +204,7 @@ class RigidBodyEngine:
         **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult:
         check_options(self.name, "lyapunov", options, keyword_options(lyapunov_full))
-        if self.max_threads is not None:
-            options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
-        options.setdefault("backend", self._backend())
+        self._place_threads(options)
         return lyapunov_full(
             get_model(model).name, params, duration, n_realizations, seed, **options
         )

@@ -149,6 +149,7 @@ def _capabilities() -> Capabilities:
     return Capabilities(
         precision="float32",
         device=declared_device(),
+        kernels="warp",
         rigid_body=True,
         linearize=False,
         deterministic=True,

@@ -65,6 +65,9 @@ class Capabilities:
     solver : the constraint-solver setting the engine runs at where it is not the
         model file's (e.g. a fixed number of iterations); None: the file's, or the
         engine's own solver that ``rod`` and ``twin`` describe.
+    kernels : what runs the steps: "native" (code compiled for the CPU: C, C++,
+        numba or XLA) or "warp" (warp kernels, written for a CUDA device; without
+        one they run only on warp's CPU device, by opt-in, and slowly).
     """
 
     precision: str
@@ -79,6 +82,7 @@ class Capabilities:
     rod: str = "soft"
     twin: str | None = None
     solver: str | None = None
+    kernels: str = "native"
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

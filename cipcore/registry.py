@@ -109,10 +109,17 @@ def get_engine(name: str) -> Engine:
 
 def engines_with(**capabilities: object) -> tuple[str, ...]:
     """Names of the available engines whose capabilities have the given values."""
+    return tuple(n for n in declared_engines(**capabilities) if availability(n) is None)
+
+
+def declared_engines(**capabilities: object) -> tuple[str, ...]:
+    """Names of the engines whose capabilities have the given values, whether or not they
+    can run here (an engine whose module cannot be imported declares nothing)."""
     out = []
     for name in engine_names():
-        if availability(name) is None:
-            caps = _loaded[name].capabilities
+        engine = _load(name)
+        if engine is not None:
+            caps = engine.capabilities
             if all(getattr(caps, k) == v for k, v in capabilities.items()):
                 out.append(name)
     return tuple(out)

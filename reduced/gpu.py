@@ -289,6 +289,7 @@ class ReducedGpuEngine(ReducedEngine):
     capabilities = Capabilities(
         precision="float64",
         device=declared_device(),
+        kernels="warp",
         rigid_body=False,
         linearize=False,
         family="reference",

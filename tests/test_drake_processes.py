@@ -55,3 +55,26 @@ def test_workers_fork_only_without_a_threaded_runtime(monkeypatch):
     assert drake._start_method() == "fork"
     monkeypatch.setitem(sys.modules, "jax", sys)
     assert drake._start_method() == "forkserver"
+
+
+def test_engine_threads_reach_the_worker_processes(monkeypatch):
+    """``threads`` of ``simulate`` and ``lyapunov`` become Drake's worker processes (one
+    driver block): stepping blocks on threads gained nothing, the step holding the GIL."""
+    from cip import drake
+
+    built = []
+    init = drake.DrakeRollout.__init__
+
+    def spy(self, model, n_realizations, threads):
+        init(self, model, n_realizations, threads)
+        built.append((n_realizations, self.processes))
+
+    monkeypatch.setattr(drake.DrakeRollout, "__init__", spy)
+    engine = get_engine("drake")
+    params = BalanceParams(beta=20.0, tau=0.01, dt=1e-3)
+    engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
+    assert built == [(4, 2)]
+    built.clear()
+    lam = engine.lyapunov("single", params, 0.05, 2, seed=3, threads=2, transient=0.0)
+    assert built and all(p == 2 for _, p in built), built
+    assert np.isfinite(lam.per_realization).all()

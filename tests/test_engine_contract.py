@@ -18,14 +18,15 @@ from helpers import engine_or_skip
 
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams
-from cipcore.registry import REFERENCE, engine_names, get_engine
+from cipcore.registry import REFERENCE, declared_engines, engine_names, get_engine
 from validation import contract
 
 P = BalanceParams(beta=20.306)
 
 
-#: engines on warp (CPU device only by opt-in): marked ``warp``, run by CI's warp step
-ON_WARP = ("mujoco-warp", "reduced-gpu")
+#: engines stepping warp kernels (CPU device only by opt-in): marked ``warp``, run by CI's
+#: warp step
+ON_WARP = declared_engines(kernels="warp")
 
 
 def _marked(names) -> list:
