@@ -108,7 +108,8 @@ class BulletRollout:
     ----------
     model : the compiled MuJoCo CIP (:func:`cip.model.build`).
     n_realizations : number of realisations (one physics client each, created lazily).
-    threads : ignored (pybullet's calls hold the GIL).
+    threads : ignored (pybullet's calls hold the GIL): the engine's ``threads`` are worker
+        processes (:class:`cip.workers.ProcessBlocks`), each building this class for a block.
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
@@ -281,7 +282,7 @@ ENGINE = RigidBodyEngine(
     # 1e-6 m, 10 s, 2 realisations, measured 8.1e-11 to 1.04e-10 (seeds 1-4, 2011), the
     # round-off of the tips' world positions; 1e-8 leaves a factor 95
     rod_tolerance=1e-8,
-    max_threads=1,
+    backend_workers=True,  # threads are worker processes (the step holds the GIL)
     notes="Bullet multibodies (pybullet), semi-implicit Euler, rod link + point-to-point "
     "(velocity level, Baumgarte erp)",
 )

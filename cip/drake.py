@@ -59,26 +59,16 @@ and 115 us for the coupled model at load 2, the rod's SAP solve being most of
 it), the rest the per-step Python calls.  No linearisation is offered: the
 discrete SAP plant has no continuous-time qacc for a rigid rod.
 
-Processes: pydrake's step holds the GIL, so ``threads`` are worker processes, each
-stepping a block of consecutive realisations (:class:`DrakeRollout`); every
-realisation has its own context and element-wise forces, so any split gives the
-same numbers to the bit.  Each delay chunk costs one round trip of states and
-controls per worker.  ``python benchmarks/bench_engines.py --engines drake
---realizations 8 --duration 0.5 --threads 1,2`` at load 29 on 2 cores: 1756 and 1724
-realisation-steps/s (x0.98); at load 4.7, 5515 and 5026 (x0.91).  Neither says
-anything of an idle machine: at load 5 two pure-Python loops took as long in two
-processes as one after the other (0.38 s against 0.39 s), so the shared machine gave
-this session no second core; the 1.7x expected of 2 cores is not measured here.
+Processes: pydrake's step holds the GIL, so the engine's ``threads`` are worker
+processes (:class:`cip.workers.ProcessBlocks`), each stepping a block of
+consecutive realisations in its own :class:`DrakeRollout`; every realisation has
+its own context and element-wise forces, so any split gives the same numbers to
+the bit.  (Until this was wired through the engine, ``threads`` split the
+realisations across threads, which the lock serialised: the earlier measurements
+of 0.98x and 0.91x for two "processes" measured those threads.)
 """
 
 from __future__ import annotations
-
-import contextlib
-import multiprocessing as mp
-import signal
-import sys
-import weakref
-from multiprocessing.connection import Connection
 
 import mujoco
 import numpy as np
@@ -142,62 +132,6 @@ class _Block:
         return xs, failed
 
 
-def _serve(conn: Connection, g: CIPGeometry, n_realizations: int) -> None:
-    """A worker process: advance its block for every (x, u) received until None."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and ends us
-    block = _Block(g, n_realizations)
-    conn.send("ready")
-    while (job := conn.recv()) is not None:
-        conn.send(block.advance(*job))
-
-
-#: modules that start threads of their own: forking a process that loaded one can deadlock
-#: the child, so the workers then start from a fork server instead (slower: each imports)
-THREADED_RUNTIMES = ("jax", "warp", "torch")
-
-
-def _start_method() -> str:
-    """``fork`` (cheap: the child has pydrake loaded) unless a threaded runtime is loaded
-    or the platform has no fork; then ``forkserver`` or ``spawn``."""
-    methods = mp.get_all_start_methods()
-    if "fork" in methods and not any(m in sys.modules for m in THREADED_RUNTIMES):
-        return "fork"
-    return "forkserver" if "forkserver" in methods else "spawn"
-
-
-class _Workers:
-    """Worker processes, one block of consecutive realisations each (ended with the rollout)."""
-
-    def __init__(self, g: CIPGeometry, sizes: list[int]) -> None:
-        ctx = mp.get_context(_start_method())
-        self.conns, self.procs = [], []
-        for size in sizes:
-            parent, child = ctx.Pipe()
-            proc = ctx.Process(target=_serve, args=(child, g, size), daemon=True)
-            proc.start()
-            child.close()
-            self.conns.append(parent)
-            self.procs.append(proc)
-        for conn in self.conns:
-            conn.recv()
-        self._finalizer = weakref.finalize(self, _Workers._stop, self.conns, self.procs)
-
-    @staticmethod
-    def _stop(conns: list[Connection], procs: list) -> None:
-        for conn in conns:
-            with contextlib.suppress(OSError, ValueError):
-                conn.send(None)
-        for proc in procs:
-            proc.join(timeout=5)
-            if proc.is_alive():
-                proc.terminate()
-
-    def advance(self, blocks: list[tuple[np.ndarray, np.ndarray]]) -> list[tuple[np.ndarray, int]]:
-        for conn, job in zip(self.conns, blocks, strict=True):
-            conn.send(job)
-        return [conn.recv() for conn in self.conns]
-
-
 class DrakeRollout:
     """:class:`cip.runner.RolloutBackend` stepping the CIP in Drake's discrete ``MultibodyPlant``.
 
@@ -206,30 +140,21 @@ class DrakeRollout:
     model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
         physical parameter and of the state layout.
     n_realizations : number of realisations (one Drake ``Context`` each).
-    threads : worker processes (at most one per realisation).  ``ExecuteForcedEvents``
-        holds the GIL (two threads stepping two plants took as long as one thread
-        stepping both), so the realisations are split into consecutive blocks, one
-        process each (forked where the platform allows); 1 steps them in this process.
-        The split does not change any number (:class:`_Block`).
+    threads : ignored.  ``ExecuteForcedEvents`` holds the GIL (two threads stepping
+        two plants took as long as one thread stepping both), so the engine's
+        ``threads`` are worker processes (:class:`cip.workers.ProcessBlocks`), each
+        building this class for a consecutive block of realisations; the split does
+        not change any number (:class:`_Block`).
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         g = geometry_from_mujoco(model)
         self.dt = g.timestep
-        self.processes = max(1, min(threads or 1, n_realizations))
-        sizes = [len(b) for b in np.array_split(np.arange(n_realizations), self.processes)]
-        self.bounds = np.cumsum([0, *sizes])
-        if self.processes == 1:
-            self.block, self.workers = _Block(g, n_realizations), None
-            plant = self.block.plant
-            c = self.block.cip
-        else:
-            c = build_plant(g)  # the state layout; built first, so forked workers inherit
-            plant = c.plant  # pydrake imported
-            self.block, self.workers = None, _Workers(g, sizes)
+        self.block = _Block(g, n_realizations)
+        c, plant = self.block.cip, self.block.plant
         self.cip, self.plant = c, plant
-        #: the in-process contexts, one per realisation (none when workers step them)
-        self.contexts = self.block.contexts if self.block is not None else []
+        #: one context per realisation
+        self.contexts = self.block.contexts
         nq = plant.num_positions()
         self.nx = nq + plant.num_velocities()
         # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
@@ -247,15 +172,8 @@ class DrakeRollout:
         x = np.zeros((R, self.nx))
         x[:, self.drake_index] = state[:, self.mj_index]
         u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
-        if self.workers is None:
-            parts = [self.block.advance(x, u)]
-        else:
-            b = self.bounds
-            parts = self.workers.advance(
-                [(x[b[i] : b[i + 1]], u[b[i] : b[i + 1]]) for i in range(self.processes)]
-            )
-        xs = np.concatenate([p[0] for p in parts])
-        self._failed += sum(p[1] for p in parts)
+        xs, failed = self.block.advance(x, u)
+        self._failed += failed
         out[...] = state[:, None, :]
         out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
         out[:, :, self.mj_index] = xs[:, :, self.drake_index]

@@ -35,6 +35,7 @@ from .mjcf_params import INTEGRATOR_NAMES, ModelMapping
 from .model import CIPParams
 from .runner import CIPRunner, MujocoRollout, RolloutBackend
 from .simulate import simulate_full
+from .workers import ProcessBlocks
 
 #: simulate_full's options that the engine sets itself
 EXCLUDED = ("engine_name",)
@@ -43,8 +44,9 @@ EXCLUDED = ("engine_name",)
 def _with_workers(
     backend: type[RolloutBackend], workers: int, model: Any, n_realizations: int, threads: int
 ) -> RolloutBackend:
-    """``backend`` built with ``workers`` workers, whatever thread count the runner passes."""
-    return backend(model, n_realizations, workers)
+    """``backend`` stepped in ``workers`` worker processes (:class:`cip.workers.ProcessBlocks`),
+    whatever thread count the runner passes."""
+    return ProcessBlocks(backend, model, n_realizations, workers)
 
 
 class RigidBodyChunks:
@@ -75,11 +77,11 @@ class RigidBodyEngine:
     the modules it needs, checked by :meth:`unavailable`; ``probe`` (optional)
     returns a reason the engine cannot run here (e.g. no GPU); ``max_threads``
     caps the realisation blocks run concurrently (1 for engines that batch all
-    realisations in one call); ``backend_workers`` says the backend splits the
-    realisations across workers of its own (Drake's worker processes): the
-    drivers then run one block of every realisation and hand ``threads`` to the
-    backend as its worker count, instead of stepping blocks on threads that the
-    backend's GIL-holding step would serialise.
+    realisations in one call); ``backend_workers`` says the backend's step holds the
+    GIL (pydrake, pybullet, Exudyn, OpenSim): the drivers then run one block of
+    every realisation and the backend steps it in ``threads`` worker processes
+    (:class:`cip.workers.ProcessBlocks`), instead of stepping blocks on threads
+    that the lock would serialise.
 
     What the validation needs to know about the discretisation: ``integrators``
     are the MuJoCo integrators the engine steps as the model file's ``<option

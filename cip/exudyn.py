@@ -203,7 +203,8 @@ class ExudynRollout:
     ----------
     model : the compiled MuJoCo CIP (:func:`cip.model.build`).
     n_realizations : number of realisations (one Exudyn system each, created lazily).
-    threads : ignored (the Python step loop holds the GIL).
+    threads : ignored (the Python step loop holds the GIL): the engine's ``threads`` are worker
+        processes (:class:`cip.workers.ProcessBlocks`), each building this class for a block.
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
@@ -310,6 +311,6 @@ ENGINE = RigidBodyEngine(
     # 2 realisations, measured 2.6e-15 to 5.3e-15 (seeds 1-4, 2011), the round-off of
     # displacements; 1e-12 leaves a factor 190
     rod_tolerance=1e-12,
-    max_threads=1,
+    backend_workers=True,  # threads are worker processes (the step holds the GIL)
     notes="Exudyn point masses, index-3 distance constraints, implicit Newmark step",
 )

@@ -180,7 +180,8 @@ class SimbodyRollout:
     ----------
     model : the compiled MuJoCo CIP (:func:`cip.model.build`).
     n_realizations : number of realisations (one ``Manager`` each).
-    threads : ignored (the Python step loop holds the GIL).
+    threads : ignored (the Python step loop holds the GIL): the engine's ``threads`` are worker
+        processes (:class:`cip.workers.ProcessBlocks`), each building this class for a block.
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
@@ -267,6 +268,6 @@ ENGINE = RigidBodyEngine(
     # 2 realisations, measured 1.5e-14 to 4.9e-14 (seeds 1-4, 2011; 2.7e-15 over 1 s: it
     # drifts, far below the projection's 1e-12 m); 1e-12 leaves a factor 20
     rod_tolerance=1e-12,
-    max_threads=1,
+    backend_workers=True,  # threads are worker processes (the step holds the GIL)
     notes="Simbody via OpenSim, fixed-step RK-Merson, rod as a ConstantDistanceConstraint",
 )

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -44,7 +45,9 @@ def run_blocks(
     ``block`` is a slice of realisation indices, ``xi`` the draws
     (len(block), n, C) for global steps ``n0 .. n0 + n - 1``.  Chunks of one
     block are called in order; blocks run concurrently on ``threads`` threads.
-    A block stops early when ``work`` returns False.
+    A block stops early when ``work`` returns False.  When the caller is
+    interrupted (Ctrl-C, SIGTERM) or a block raises, the other blocks stop at
+    their next chunk, so the exception reaches the caller within one chunk.
     """
     chunk_steps = chunk_steps or CHUNK_STEPS
     nreal = noise.n_realizations
@@ -60,10 +63,14 @@ def run_blocks(
         leave=False,
     )
 
+    cancel = threading.Event()  # set when any block fails or the run is interrupted
+
     def run(block: slice) -> None:
         nb = block.stop - block.start
         buf = np.empty((nb, min(chunk_steps, n_steps), noise.n_controllers))
         for n0 in range(0, n_steps, chunk_steps):
+            if cancel.is_set():
+                return
             n = min(chunk_steps, n_steps - n0)
             xi = buf[:, :n]
             for j in range(nb):
@@ -77,8 +84,13 @@ def run_blocks(
             run(blocks[0])
         else:
             with ThreadPoolExecutor(len(blocks)) as pool:
-                for fut in [pool.submit(run, b) for b in blocks]:
-                    fut.result()
+                futures = [pool.submit(run, b) for b in blocks]
+                try:
+                    for fut in futures:
+                        fut.result()
+                except BaseException:  # Ctrl-C, SIGTERM or a failed block: the other
+                    cancel.set()  # blocks stop at their next chunk, not at their end
+                    raise
     finally:
         bar.close()
     noise.position += n_steps

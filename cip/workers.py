@@ -1,0 +1,163 @@
+"""Realisations split across worker processes, for backends whose step holds the GIL.
+
+pydrake, pybullet, Exudyn and OpenSim (Simbody) step from Python calls that hold
+the interpreter lock: two threads stepping two realisation blocks take as long
+as one thread stepping both.  :class:`ProcessBlocks` wraps such a
+:class:`cip.runner.RolloutBackend`: the R realisations are split into
+consecutive blocks, and each block is stepped by its own instance of the backend
+in a worker process.  Every realisation of these backends has its own world
+(context, client, system or manager) and element-wise forces, so a split changes
+no number: the result is bit-identical for any worker count (tested per engine).
+
+Each delay chunk costs one round trip per worker: the block's states and
+controls out, its recorded states back (R/W x n x nstate float64: 100 steps of 8
+coupled realisations are about 0.1 MB).
+
+Workers are forked where the platform allows (the child inherits the loaded
+engine and the model: no import, no pickling).  A process that has loaded a
+runtime with threads of its own (JAX, warp, torch) must not fork; the workers
+then start from a fork server, which needs the backend class and the model
+picklable.  A backend built inside a function (a fault of
+:mod:`validation.faults`) is not: it then steps in this process, and
+:attr:`ProcessBlocks.workers` says how many processes ran.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import pickle
+import signal
+import sys
+import weakref
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+#: modules that start threads of their own: forking a process that loaded one can deadlock
+#: the child, so the workers then start from a fork server instead (each imports)
+THREADED_RUNTIMES = ("jax", "warp", "torch")
+
+
+def start_method() -> str:
+    """``fork`` (cheap: the child has the engine loaded) unless a threaded runtime is
+    loaded or the platform has no fork; then ``forkserver`` or ``spawn``."""
+    methods = mp.get_all_start_methods()
+    if "fork" in methods and not any(m in sys.modules for m in THREADED_RUNTIMES):
+        return "fork"
+    return "forkserver" if "forkserver" in methods else "spawn"
+
+
+def _serve(conn: Connection, backend: type, model: Any, n_realizations: int) -> None:
+    """A worker: step its block for every (state, ctrl) received, until None.  An
+    exception is sent back and raised in the parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and ends us
+    try:
+        block = backend(model, n_realizations, 1)
+    except Exception as exc:
+        conn.send(exc)
+        return
+    conn.send("ready")
+    while (job := conn.recv()) is not None:
+        state, ctrl = job
+        out = np.empty((*ctrl.shape[:2], state.shape[1]))
+        try:
+            block(state, ctrl, out)
+        except Exception as exc:
+            conn.send(exc)
+            continue
+        conn.send((out, block.warnings()))
+
+
+def _receive(conn: Connection) -> Any:
+    msg = conn.recv()
+    if isinstance(msg, BaseException):
+        raise msg
+    return msg
+
+
+def _picklable(*objs: object) -> bool:
+    try:
+        pickle.dumps(objs)
+    except Exception:  # local classes, lambdas, unpicklable engine objects
+        return False
+    return True
+
+
+class ProcessBlocks:
+    """:class:`cip.runner.RolloutBackend` stepping consecutive realisation blocks of
+    ``backend`` in worker processes (one block per worker; see the module docstring).
+
+    Parameters
+    ----------
+    backend : the engine's backend class, built as ``backend(model, n, 1)`` per block.
+    model : the compiled MuJoCo CIP.
+    n_realizations : number of realisations R.
+    workers : worker processes asked for; at most R.  1, a daemonic process (a
+        pool's worker, which may not start processes) or a fork server that cannot
+        carry ``backend`` steps every realisation in this process.
+    """
+
+    def __init__(self, backend: type, model: Any, n_realizations: int, workers: int) -> None:
+        workers = max(1, min(int(workers), n_realizations))
+        method = start_method()
+        if workers > 1 and mp.current_process().daemon:
+            workers = 1  # a pool's worker (a sweep point) may not start processes
+        if workers > 1 and method != "fork" and not _picklable(backend, model):
+            workers = 1
+        self.workers = workers
+        sizes = [len(b) for b in np.array_split(np.arange(n_realizations), workers)]
+        self.bounds = np.cumsum([0, *sizes])
+        self.conns: list[Connection] = []
+        self.procs: list[Any] = []
+        self.local = backend(model, n_realizations, 1) if workers == 1 else None
+        if self.local is not None:
+            return
+        ctx = mp.get_context(method)
+        for size in sizes:
+            parent, child = ctx.Pipe()
+            proc = ctx.Process(target=_serve, args=(child, backend, model, size), daemon=True)
+            proc.start()
+            child.close()
+            self.conns.append(parent)
+            self.procs.append(proc)
+        self._finalizer = weakref.finalize(self, ProcessBlocks._stop, self.conns, self.procs)
+        for conn in self.conns:
+            _receive(conn)
+        self._warnings = [0] * workers
+
+    @staticmethod
+    def _stop(conns: list[Connection], procs: list) -> None:
+        for conn in conns:
+            with contextlib.suppress(OSError, ValueError):
+                conn.send(None)
+        for proc in procs:
+            proc.join(timeout=5)
+            if proc.is_alive():
+                proc.terminate()
+
+    def close(self) -> None:
+        """End the workers now (they also end when this object is collected)."""
+        if self.local is None:
+            self._finalizer()
+
+    def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+        if self.local is not None:
+            self.local(state, ctrl, out)
+            return
+        b = self.bounds
+        for i, conn in enumerate(self.conns):
+            conn.send((state[b[i] : b[i + 1]], ctrl[b[i] : b[i + 1]]))
+        replies = [conn.recv() for conn in self.conns]  # every worker answers, then raise
+        for reply in replies:
+            if isinstance(reply, BaseException):
+                raise reply
+        for i, (states, warned) in enumerate(replies):
+            out[b[i] : b[i + 1]], self._warnings[i] = states, warned
+
+    def warnings(self) -> int:
+        """The backend's warnings (failed steps), summed over the blocks."""
+        if self.local is not None:
+            return self.local.warnings()
+        return sum(self._warnings)

@@ -1,0 +1,121 @@
+"""Realisations of GIL-holding engines split across worker processes
+(:class:`cip.workers.ProcessBlocks`): the same numbers for any split, errors raised
+in the parent, workers ended with the rollout."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import engine_or_skip
+
+from cipcore.params import BalanceParams
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_any_process_split_is_bit_identical(model):
+    engine = engine_or_skip("drake")
+    params = BalanceParams(beta=20.0, alpha=22.0, gamma=50.0, nu=0.6, tau=0.01, dt=1e-3)
+    runs = {
+        p: engine.simulate(model, params, 0.025, 3, seed=7, threads=p, progress=False)
+        for p in (1, 2, 3)
+    }
+    assert np.isfinite(runs[1]["balancing_error"]).all()
+    for p in (2, 3):
+        assert set(runs[p].data) == set(runs[1].data)
+        for name in runs[1].data:
+            assert np.array_equal(runs[p][name], runs[1][name]), (p, name)
+
+
+def test_workers_follow_threads_and_end_with_the_rollout():
+    import gc
+
+    from cip.drake import DrakeRollout
+    from cip.model import CIPParams, build
+    from cip.workers import ProcessBlocks
+
+    engine_or_skip("drake")
+    model = build("coupled", CIPParams())
+    rollout = ProcessBlocks(DrakeRollout, model, 3, workers=2)
+    procs = list(rollout.procs)
+    assert rollout.workers == 2 and all(p.is_alive() for p in procs)
+    assert ProcessBlocks(DrakeRollout, model, 1, workers=4).workers == 1  # one per realisation
+    del rollout
+    gc.collect()
+    for p in procs:
+        p.join(timeout=10)
+        assert not p.is_alive()
+
+
+class _Failing:
+    """A backend whose step raises: the worker's error must reach the parent."""
+
+    def __init__(self, model, n_realizations, threads):
+        self.n = n_realizations
+
+    def __call__(self, state, ctrl, out):
+        raise FloatingPointError(f"step failed in a block of {self.n}")
+
+    def warnings(self) -> int:
+        return 0
+
+
+def test_an_error_in_a_worker_is_raised_in_the_parent():
+    from cip.model import CIPParams, build
+    from cip.workers import ProcessBlocks
+
+    model = build("single", CIPParams())
+    rollout = ProcessBlocks(_Failing, model, 4, workers=2)
+    state = np.zeros((4, 10))
+    with pytest.raises(FloatingPointError, match="block of 2"):
+        rollout(state, np.zeros((4, 3, 1)), np.empty((4, 3, 10)))
+    rollout.close()
+
+
+def test_a_fork_server_runs_an_unpicklable_backend_in_process(monkeypatch):
+    """With a threaded runtime loaded the workers cannot fork; a backend built inside a
+    function (a fault's) cannot travel to a fork server, so it steps in this process."""
+    from cip import workers
+    from cip.model import CIPParams, build
+
+    monkeypatch.setattr(workers, "start_method", lambda: "forkserver")
+
+    class Local(_Failing):
+        pass
+
+    assert workers.ProcessBlocks(Local, build("single", CIPParams()), 4, 2).workers == 1
+
+
+def test_workers_fork_only_without_a_threaded_runtime(monkeypatch):
+    import sys
+
+    from cip import workers
+
+    monkeypatch.delitem(sys.modules, "jax", raising=False)
+    monkeypatch.delitem(sys.modules, "warp", raising=False)
+    monkeypatch.delitem(sys.modules, "torch", raising=False)
+    assert workers.start_method() == "fork"
+    monkeypatch.setitem(sys.modules, "jax", sys)
+    assert workers.start_method() == "forkserver"
+
+
+def test_engine_threads_reach_the_worker_processes(monkeypatch):
+    """``threads`` of ``simulate`` and ``lyapunov`` become Drake's worker processes (one
+    driver block): stepping blocks on threads gained nothing, the step holding the GIL."""
+    from cip import workers
+
+    engine = engine_or_skip("drake")
+    built = []
+    init = workers.ProcessBlocks.__init__
+
+    def spy(self, backend, model, n_realizations, n_workers):
+        init(self, backend, model, n_realizations, n_workers)
+        built.append((n_realizations, self.workers))
+
+    monkeypatch.setattr(workers.ProcessBlocks, "__init__", spy)
+    params = BalanceParams(beta=20.0, tau=0.01, dt=1e-3)
+    engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
+    assert built == [(4, 2)]
+    built.clear()
+    lam = engine.lyapunov("single", params, 0.05, 2, seed=3, threads=2, transient=0.0)
+    assert built and all(w == 2 for _, w in built), built
+    assert np.isfinite(lam.per_realization).all()
