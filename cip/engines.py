@@ -41,6 +41,12 @@ from .workers import ProcessBlocks
 EXCLUDED = ("engine_name",)
 
 
+#: realisation-steps below which a GIL-holding engine steps in this process: starting two
+#: workers took 0.2-0.4 s (Drake, Bullet, Exudyn, Simbody at load 8), about 1e3-4e3 steps
+#: of these engines, so below 1e4 steps the workers would cost more than they save
+MIN_WORKER_STEPS = 10_000
+
+
 def _with_workers(
     backend: type[RolloutBackend], workers: int, model: Any, n_realizations: int, threads: int
 ) -> RolloutBackend:
@@ -164,15 +170,19 @@ class RigidBodyEngine:
         )  # fmt: skip
         return RigidBodyChunks(r)
 
-    def _place_threads(self, options: dict[str, Any]) -> None:
+    def _place_threads(self, options: dict[str, Any], work: int) -> None:
         """Set the drivers' ``threads`` and ``backend`` options in place: capped at
         ``max_threads``; for a backend with workers of its own, one driver block and
-        ``threads`` workers in the backend (the same numbers for any count)."""
+        ``threads`` worker processes in the backend (the same numbers for any count),
+        or none when the ``work`` (realisation-steps) is below
+        :data:`MIN_WORKER_STEPS`."""
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         backend = options.get("backend") or self._backend()
         if self.backend_workers:
             workers = options.get("threads") or default_threads()
+            if work < MIN_WORKER_STEPS:
+                workers = 1
             backend = functools.partial(_with_workers, backend, workers)
             options["threads"] = 1
         options["backend"] = backend
@@ -187,7 +197,8 @@ class RigidBodyEngine:
         **options: Unpack[SimulateOptions],
     ) -> Trajectory:
         check_options(self.name, "simulate", options, keyword_options(simulate_full, EXCLUDED))
-        self._place_threads(options)
+        n = getattr(options.get("noise"), "n_realizations", n_realizations)
+        self._place_threads(options, n * round(duration / params.dt))
         tr = simulate_full(
             get_model(model).name, params, duration, n_realizations, seed,
             engine_name=self.name, **options,
@@ -206,7 +217,7 @@ class RigidBodyEngine:
         **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult:
         check_options(self.name, "lyapunov", options, keyword_options(lyapunov_full))
-        self._place_threads(options)
+        self._place_threads(options, 2 * n_realizations * round(duration / params.dt))
         return lyapunov_full(
             get_model(model).name, params, duration, n_realizations, seed, **options
         )

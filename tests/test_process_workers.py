@@ -10,10 +10,23 @@ from helpers import engine_or_skip
 
 from cipcore.params import BalanceParams
 
+#: engines whose ``threads`` are worker processes (their step holds the GIL)
+WORKER_ENGINES = ("drake", "bullet", "exudyn", "simbody")
 
+
+@pytest.fixture
+def always_workers(monkeypatch):
+    """Worker processes however small the run (the tests' runs are below the threshold)."""
+    import cip.engines
+
+    monkeypatch.setattr(cip.engines, "MIN_WORKER_STEPS", 0)
+
+
+@pytest.mark.parametrize("name", WORKER_ENGINES)
 @pytest.mark.parametrize("model", ["single", "coupled"])
-def test_any_process_split_is_bit_identical(model):
-    engine = engine_or_skip("drake")
+def test_any_process_split_is_bit_identical(name, model, always_workers):
+    engine = engine_or_skip(name)
+    assert engine.backend_workers
     params = BalanceParams(beta=20.0, alpha=22.0, gamma=50.0, nu=0.6, tau=0.01, dt=1e-3)
     runs = {
         p: engine.simulate(model, params, 0.025, 3, seed=7, threads=p, progress=False)
@@ -22,8 +35,8 @@ def test_any_process_split_is_bit_identical(model):
     assert np.isfinite(runs[1]["balancing_error"]).all()
     for p in (2, 3):
         assert set(runs[p].data) == set(runs[1].data)
-        for name in runs[1].data:
-            assert np.array_equal(runs[p][name], runs[1][name]), (p, name)
+        for field in runs[1].data:
+            assert np.array_equal(runs[p][field], runs[1][field]), (p, field)
 
 
 def test_workers_follow_threads_and_end_with_the_rollout():
@@ -100,7 +113,9 @@ def test_workers_fork_only_without_a_threaded_runtime(monkeypatch):
 
 def test_engine_threads_reach_the_worker_processes(monkeypatch):
     """``threads`` of ``simulate`` and ``lyapunov`` become Drake's worker processes (one
-    driver block): stepping blocks on threads gained nothing, the step holding the GIL."""
+    driver block): stepping blocks on threads gained nothing, the step holding the GIL.
+    A run below ``MIN_WORKER_STEPS`` realisation-steps starts none."""
+    import cip.engines
     from cip import workers
 
     engine = engine_or_skip("drake")
@@ -114,8 +129,23 @@ def test_engine_threads_reach_the_worker_processes(monkeypatch):
     monkeypatch.setattr(workers.ProcessBlocks, "__init__", spy)
     params = BalanceParams(beta=20.0, tau=0.01, dt=1e-3)
     engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
+    assert built == [(4, 1)]  # 80 realisation-steps: cheaper than starting a worker
+    monkeypatch.setattr(cip.engines, "MIN_WORKER_STEPS", 80)
+    built.clear()
+    engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
     assert built == [(4, 2)]
     built.clear()
     lam = engine.lyapunov("single", params, 0.05, 2, seed=3, threads=2, transient=0.0)
     assert built and all(w == 2 for _, w in built), built
     assert np.isfinite(lam.per_realization).all()
+
+
+def test_the_worker_engines_are_every_installed_engine_that_declares_workers():
+    from cipcore.registry import availability, engine_names, get_engine
+
+    declared = {
+        n
+        for n in engine_names()
+        if availability(n) is None and getattr(get_engine(n), "backend_workers", False)
+    }
+    assert declared == {n for n in WORKER_ENGINES if availability(n) is None}
