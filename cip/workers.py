@@ -20,12 +20,17 @@ then start from a fork server, which needs the backend class and the model
 picklable.  A backend built inside a function (a fault of
 :mod:`validation.faults`) is not: it then steps in this process, and
 :attr:`ProcessBlocks.workers` says how many processes ran.
+
+Workers end with their rollout object, at the parent's exit, or, when the
+parent is killed outright (no clean-up runs), within :data:`ORPHAN_POLL_S` of
+its death: no orphaned worker keeps a core.
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import os
 import pickle
 import signal
 import sys
@@ -38,6 +43,11 @@ import numpy as np
 #: modules that start threads of their own: forking a process that loaded one can deadlock
 #: the child, so the workers then start from a fork server instead (each imports)
 THREADED_RUNTIMES = ("jax", "warp", "torch")
+
+
+#: s between a waiting worker's checks that its parent is alive (a forked worker
+#: inherits the pipes' other ends, so a killed parent shows no end-of-file there)
+ORPHAN_POLL_S = 1.0
 
 
 def start_method() -> str:
@@ -59,7 +69,18 @@ def _serve(conn: Connection, backend: type, model: Any, n_realizations: int) -> 
         conn.send(exc)
         return
     conn.send("ready")
-    while (job := conn.recv()) is not None:
+    parent = os.getppid()
+    while True:
+        try:
+            if not conn.poll(ORPHAN_POLL_S):
+                if os.getppid() != parent:  # the parent died (killed): end with it
+                    return
+                continue
+            job = conn.recv()
+        except (EOFError, OSError):
+            return
+        if job is None:
+            return
         state, ctrl = job
         out = np.empty((*ctrl.shape[:2], state.shape[1]))
         try:

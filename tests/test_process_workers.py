@@ -149,3 +149,45 @@ def test_the_worker_engines_are_every_installed_engine_that_declares_workers():
         if availability(n) is None and getattr(get_engine(n), "backend_workers", False)
     }
     assert declared == {n for n in WORKER_ENGINES if availability(n) is None}
+
+
+def test_workers_end_when_their_parent_is_killed(tmp_path):
+    """SIGKILL of the run (no clean-up in it) leaves no orphaned worker behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    code = (
+        "import sys, time\n"
+        "from cip.model import CIPParams, build\n"
+        "from cip.workers import ProcessBlocks\n"
+        "from test_process_workers import _Failing\n"
+        "r = ProcessBlocks(_Failing, build('single', CIPParams()), 4, 2)\n"
+        "print(*[p.pid for p in r.procs], flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([os.getcwd(), os.path.dirname(__file__)])}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env
+    )
+    pids = [int(p) for p in proc.stdout.readline().split()]
+    assert len(pids) == 2
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + 10
+    alive = pids
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = [p for p in pids if _running(p)]
+    assert not alive, f"workers {alive} outlived their killed parent"
+
+
+def _running(pid: int) -> bool:
+    """True while process ``pid`` exists and is not a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
