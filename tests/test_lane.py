@@ -105,6 +105,33 @@ def test_a_crash_names_its_stage_and_keeps_the_stages_before_it(
     assert r["crashed"]["stage"] == failing
 
 
+def test_a_stage_computed_ahead_while_the_lane_works_crashes_in_its_turn(
+    stand_ins, monkeypatch, tmp_path
+):
+    """While a lane stage is still running, the main thread computes the rod-length study
+    ahead; its crash is raised in its own turn, after the lane's stages are kept."""
+    import time
+
+    def slow(*a, **k):
+        time.sleep(0.5)
+        stand_ins.append("critical gains")
+        return {"stage": "critical gains"}
+
+    def boom(*a, **k):
+        stand_ins.append("rod-length study")
+        raise FloatingPointError("engine returned garbage")
+
+    monkeypatch.setattr(harness.paper, "critical_gains", slow)
+    monkeypatch.setattr(harness.agreement, "rod_length_study", boom)
+    out = tmp_path / "o"
+    with pytest.raises(StageCrashed) as info:
+        run_validation(PROFILES["smoke"], out, workers=2, progress=False, figures=False)
+    assert info.value.stage == "rod-length study"
+    assert stand_ins.index("rod-length study") < stand_ins.index("critical gains")  # ahead
+    r = json.loads((out / "results.json").read_text())
+    assert r["stages_done"] == list(STAGES[: STAGES.index("rod-length study")])
+
+
 def test_the_lane_holds_the_reduced_model_stages_only():
     from validation.harness import MODEL_FILE_STAGES
 

@@ -366,7 +366,7 @@ def run_validation(
             else:
                 c = _cpu_seconds()
                 if lane is not None and name in lane:
-                    for n in later:  # this thread's own stages first, while the lane works
+                    for n in later if not lane.done(name) else ():  # ahead, while it works
                         if n not in ahead and not (resume and store.load(n) is not None):
                             ta = time.perf_counter()
                             try:

@@ -54,6 +54,10 @@ class Lane:
                 continue
             fut.set_result((value, round(time.perf_counter() - t, 2)))
 
+    def done(self, name: str) -> bool:
+        """Whether stage ``name`` has ended (computed, raised or cancelled)."""
+        return self._futures[name].done()
+
     def result(self, name: str) -> tuple[Any, float]:
         """(value, wall seconds) of stage ``name``; waits for it (interruptible)."""
         fut = self._futures[name]
