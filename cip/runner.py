@@ -18,6 +18,7 @@ keeps the noise at t and needs no callback.
 
 from __future__ import annotations
 
+import copy
 import os
 from dataclasses import dataclass
 from typing import Protocol
@@ -72,9 +73,16 @@ class RolloutBackend(Protocol):
 
 
 class MujocoRollout:
-    """MuJoCo on the CPU: one ``mujoco.rollout`` call per chunk, across threads."""
+    """MuJoCo on the CPU: one ``mujoco.rollout`` call per chunk, across threads.
+
+    The runner reads states only, so the rollout steps a copy of the model with its
+    sensor stage disabled (sensors are outputs: the states are the same bit for bit;
+    about 5-10 % of a coupled step).
+    """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
+        model = copy.copy(model)  # the caller's model keeps its sensors
+        model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
         self.models = [model] * n_realizations
         self.datas = [mujoco.MjData(model) for _ in range(threads)]
         self._sens: np.ndarray | None = None

@@ -11,7 +11,7 @@ from cipcore.results import LyapunovResult
 from cipcore.schema import COMMON_FIELDS, UNITS, Trajectory
 from cipcore.stats import mean_ci95
 
-from .lyapunov import CriticalGain, critical_gain, lyapunov
+from .lyapunov import CriticalGain, critical_gain, lyapunov, lyapunov_gains
 from .simulate import n_controllers, simulate
 from .stability import (
     characteristic_function,
@@ -39,6 +39,7 @@ __all__ = [
     "delay_system",
     "discrete_exponent",
     "lyapunov",
+    "lyapunov_gains",
     "mean_ci95",
     "n_controllers",
     "random_gain",

@@ -17,6 +17,7 @@ result.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -62,6 +63,45 @@ def lyapunov(
     renorm_interval : s between renormalisations (default tau).
     stepper : "semi-implicit" or "explicit".
     """
+    return lyapunov_gains(
+        model, (params,), duration, n_realizations, seed, transient=transient,
+        renorm_interval=renorm_interval, stepper=stepper, noise=noise, threads=threads,
+        progress=progress,
+    )[0]  # fmt: skip
+
+
+def lyapunov_gains(
+    model: str,
+    params_seq: Sequence[BalanceParams],
+    duration: float = 200.0,
+    n_realizations: int = 8,
+    seed: int = 0,
+    *,
+    transient: float | None = None,
+    renorm_interval: float | None = None,
+    stepper: str = "semi-implicit",
+    noise: GainNoise | None = None,
+    threads: int | None = None,
+    progress: bool = False,
+) -> list[LyapunovResult]:
+    """:func:`lyapunov` at several parameter sets (e.g. gains) under the same draws.
+
+    Each chunk of a realisation's draws is made once and advances every parameter
+    set, so the draws are shared (common random numbers, as separate :func:`lyapunov`
+    calls with one seed draw them) and made once instead of once per set; each
+    result equals :func:`lyapunov`'s for its parameters alone.  The sets share the
+    step ``dt`` and the delay ``tau`` (s).  Arguments as :func:`lyapunov`.
+    """
+    params_seq = tuple(params_seq)
+    if not params_seq:
+        raise ParameterError("params_seq must hold at least one parameter set")
+    params = params_seq[0]
+    for p in params_seq[1:]:
+        if p.dt != params.dt or p.delay_steps != params.delay_steps:
+            raise ParameterError(
+                f"every parameter set must share dt and tau (dt {params.dt} s, tau "
+                f"{params.tau} s), got dt {p.dt} s, tau {p.tau} s"
+            )
     nc = n_controllers(model)
     check_choice("stepper", stepper, STEPPERS)
     duration = check_duration(duration)
@@ -77,38 +117,42 @@ def lyapunov(
     noise = make_noise(noise, seed, n_realizations, nc)
     nreal = noise.n_realizations
     d = params.delay_steps
+    ng = len(params_seq)
 
-    y = np.empty((nreal, 2 * nc))
-    hist = np.empty((nreal, nc, d))
+    y = np.empty((ng, nreal, 2 * nc))
+    hist = np.empty((ng, nreal, nc, d))
     for r in range(nreal):
         rng = tangent_rng(noise.seed, noise.first_realization + r)
-        y[r] = rng.standard_normal(2 * nc)
-        hist[r] = rng.standard_normal((nc, d))
-    logsum = np.zeros(nreal)
+        y[:, r] = rng.standard_normal(2 * nc)
+        hist[:, r] = rng.standard_normal((nc, d))
+    logsum = np.zeros((ng, nreal))
     semi = stepper == "semi-implicit"
 
     def work(block: slice, xi: np.ndarray, n0: int) -> None:
-        advance_errors(
-            xi, y[block], hist[block], n0 % d, params.alpha, params.beta, params.gamma,
-            params.noise_scale, params.dt, semi, n0, renorm_steps, transient_steps,
-            logsum[block],
-        )  # fmt: skip
+        for g, p in enumerate(params_seq):
+            advance_errors(
+                xi, y[g, block], hist[g, block], n0 % d, p.alpha, p.beta, p.gamma,
+                p.noise_scale, p.dt, semi, n0, renorm_steps, transient_steps, logsum[g, block],
+            )  # fmt: skip
 
     run_blocks(noise, n_steps, work, threads=threads, progress=progress and "lyapunov")
-    # the last partial interval is measured by the final norm
-    final = np.sqrt((y**2).sum(axis=1) + (hist**2).sum(axis=(1, 2)))
-    last_renorm = (n_steps // renorm_steps) * renorm_steps
-    if n_steps > last_renorm and n_steps > transient_steps:
-        logsum += np.log(final)
     # accumulation starts at the first renormalisation after the transient
     start = (transient_steps // renorm_steps) * renorm_steps
     t_measured = (n_steps - start) * params.dt
-    per = logsum / t_measured
-    mean, ci = mean_ci95(per)
-    return LyapunovResult(
-        lambda1=mean, ci95=ci, per_realization=per, duration=duration, transient=transient,
-        model=model, params=params.as_dict(), seed=noise.seed,
-    )  # fmt: skip
+    last_renorm = (n_steps // renorm_steps) * renorm_steps
+    out = []
+    for g, p in enumerate(params_seq):
+        # the last partial interval is measured by the final norm
+        final = np.sqrt((y[g] ** 2).sum(axis=1) + (hist[g] ** 2).sum(axis=(1, 2)))
+        if n_steps > last_renorm and n_steps > transient_steps:
+            logsum[g] += np.log(final)
+        per = logsum[g] / t_measured
+        mean, ci = mean_ci95(per)
+        out.append(LyapunovResult(
+            lambda1=mean, ci95=ci, per_realization=per, duration=duration, transient=transient,
+            model=model, params=p.as_dict(), seed=noise.seed,
+        ))  # fmt: skip
+    return out
 
 
 @dataclass
@@ -173,11 +217,10 @@ def critical_gain(
     betas = np.linspace(lo, hi, n_gains)
     per = []
     cis = []
-    for b in betas:
-        res = lyapunov(
-            model, base.with_(beta=float(b)), duration, n_realizations, seed,
-            threads=threads, progress=progress,
-        )  # fmt: skip
+    for res in lyapunov_gains(
+        model, [base.with_(beta=float(b)) for b in betas], duration, n_realizations, seed,
+        threads=threads, progress=progress,
+    ):  # fmt: skip
         per.append(res.per_realization)
         cis.append(res.ci95)
     per_arr = np.array(per)  # (gains, realisations)
@@ -190,19 +233,46 @@ def critical_gain(
             f"(lambda1 from {mean.min():.3g} to {mean.max():.3g} 1/s); widen beta_range"
         )
     rng = purpose_rng(seed, "bootstrap")
-    boots = []
-    for _ in range(n_bootstrap):
-        idx = rng.integers(0, per_arr.shape[1], per_arr.shape[1])
-        b = _solve_fit(betas, per_arr[:, idx].mean(axis=1), target, deg)
-        if b is not None:
-            boots.append(b)
-    boots_arr = np.array(boots)
+    n = per_arr.shape[1]
+    idx = np.stack([rng.integers(0, n, n) for _ in range(n_bootstrap)])  # the draws, in order
+    boots_arr = _solve_fits(betas, per_arr[:, idx].mean(axis=2), target, deg)
+    boots_arr = boots_arr[np.isfinite(boots_arr)]
     ci = (float(np.percentile(boots_arr, 2.5)), float(np.percentile(boots_arr, 97.5)))
     return CriticalGain(
         beta_star=float(beta_star), std=float(boots_arr.std(ddof=1)), ci95=ci, target=target,
         betas=betas, lambdas=mean, ci95s=np.array(cis), model=model, duration=duration,
         n_realizations=per_arr.shape[1], seed=seed,
     )  # fmt: skip
+
+
+def _solve_fits(betas: np.ndarray, lams: np.ndarray, target: float, deg: int) -> np.ndarray:
+    """:func:`_solve_fit` of every column of ``lams`` (gains, B) at once; NaN where none.
+
+    One least-squares call for every column and one batched eigenvalue call for the
+    fits' companion matrices (the same matrices :func:`numpy.roots` forms), so each
+    column's root equals :func:`_solve_fit`'s to rounding.
+    """
+    coef = np.polyfit(betas, lams, deg)  # (deg + 1, B)
+    coef[-1] -= target
+    out = np.full(lams.shape[1], np.nan)
+    ok = (coef[0] != 0) & np.isfinite(coef).all(axis=0)
+    for j in np.flatnonzero(~ok):  # a degenerate fit: the scalar path
+        b = _solve_fit(betas, lams[:, j], target, deg)
+        out[j] = np.nan if b is None else b
+    c = coef[:, ok].T  # (B', deg + 1)
+    comp = np.zeros((c.shape[0], deg, deg))
+    comp[:, 0, :] = -c[:, 1:] / c[:, :1]
+    comp[:, np.arange(1, deg), np.arange(deg - 1)] = 1.0
+    roots = np.linalg.eigvals(comp)  # (B', deg)
+    real = roots.real
+    usable = (np.abs(roots.imag) < 1e-9) & (real >= betas.min()) & (real <= betas.max())
+    # the crossing nearest the data's own crossing
+    guess = betas[np.argmin(np.abs(lams[:, ok] - target), axis=0)]
+    dist = np.where(usable, np.abs(real - guess[:, None]), np.inf)
+    best = np.argmin(dist, axis=1)
+    rows = np.arange(c.shape[0])
+    out[ok] = np.where(usable.any(axis=1), real[rows, best], np.nan)
+    return out
 
 
 def _solve_fit(betas: np.ndarray, lam: np.ndarray, target: float, deg: int) -> float | None:

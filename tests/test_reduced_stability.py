@@ -14,6 +14,7 @@ from reduced import (
     critical_gain,
     discrete_exponent,
     lyapunov,
+    lyapunov_gains,
 )
 
 
@@ -116,6 +117,35 @@ def test_lyapunov_independent_of_dt_with_euler_maruyama_scaling():
     half = (a.ci95[1] - a.ci95[0] + b.ci95[1] - b.ci95[0]) / 2
     assert abs(a.lambda1 - b.lambda1) < half + 0.003
     assert b.ci95[1] < free - 0.02
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_lyapunov_at_several_gains_equals_one_call_per_gain(model):
+    """The draws made once for every gain give each gain's exponents bit for bit."""
+    gains = [BalanceParams(beta=b) for b in (19.5, 20.3, 23.0)]
+    kw = {"duration": 30.0, "n_realizations": 5, "seed": 7, "threads": 2}
+    for one, many in zip([lyapunov(model, p, **kw) for p in gains],
+                         lyapunov_gains(model, gains, **kw), strict=True):  # fmt: skip
+        assert np.array_equal(one.per_realization, many.per_realization)
+        assert one.ci95 == many.ci95 and one.params == many.params
+    with pytest.raises(ParameterError, match="share dt and tau"):
+        lyapunov_gains(model, [gains[0], BalanceParams(beta=20.0, tau=0.2)], **kw)
+
+
+def test_bootstrap_fits_at_once_equal_one_fit_each():
+    """critical_gain's bootstrap solves every resample's fit at once: the same roots (or
+    none) as one fit each."""
+    from reduced.lyapunov import _solve_fit, _solve_fits
+
+    rng = np.random.default_rng(3)
+    betas = np.linspace(19.8, 20.8, 5)
+    for deg in (1, 2):
+        lams = 5e-4 + 0.01 * (betas[:, None] - 20.3) + 0.004 * (betas[:, None] - 20.3) ** 2
+        lams = lams + 0.006 * rng.standard_normal((5, 400))
+        one = [_solve_fit(betas, lams[:, j], 5e-4, deg) for j in range(lams.shape[1])]
+        one = np.array([np.nan if b is None else b for b in one])
+        assert np.isnan(one).any() and np.isfinite(one).any()  # both cases exercised
+        np.testing.assert_array_equal(_solve_fits(betas, lams, 5e-4, deg), one)
 
 
 def test_lyapunov_bad_input():

@@ -25,7 +25,14 @@ from __future__ import annotations
 import numpy as np
 
 from cipcore.models import MODEL_NAMES, get_model
-from reduced import BalanceParams, GainNoise, ParameterError, critical_gain, lyapunov, simulate
+from reduced import (
+    BalanceParams,
+    GainNoise,
+    ParameterError,
+    critical_gain,
+    lyapunov_gains,
+    simulate,
+)
 from reduced.nonlinear import simulate_nonlinear
 
 from . import metrics
@@ -119,11 +126,13 @@ def lyapunov_curve(profile: Profile, threads: int | None) -> dict:
     out = {}
     for model in MODEL_NAMES:
         vals = []
-        for beta in profile.lyapunov_curve_gains:
-            r = lyapunov(model, BalanceParams(beta=float(beta)), profile.lyapunov_duration * 2,
-                         profile.lyapunov_realizations * 2,
-                         seed=profile.seed_for("curve", model), threads=threads)  # fmt: skip
-            vals.append((float(beta), r.lambda1, *r.ci95))
+        gains = [BalanceParams(beta=float(beta)) for beta in profile.lyapunov_curve_gains]
+        # one seed for every gain: each realisation's draws are made once for all of them
+        for p, r in zip(gains, lyapunov_gains(model, gains, profile.lyapunov_duration * 2,
+                                              profile.lyapunov_realizations * 2,
+                                              seed=profile.seed_for("curve", model),
+                                              threads=threads), strict=True):  # fmt: skip
+            vals.append((float(p.beta), r.lambda1, *r.ci95))
         out[model] = np.array(vals)
     return out
 

@@ -68,6 +68,7 @@ def run_sweep(
     progress: bool = False,
     on_point: Callable[[dict], None] | None = None,
     wait_for_lock: bool = False,
+    point_threads: int = 1,
 ) -> SweepReport:
     """Compute every missing grid point, persist each, assemble ``sweep.nc``.
 
@@ -78,7 +79,9 @@ def run_sweep(
     the Dask cluster at ``scheduler``; :attr:`SweepReport.schedule` says which.  The directory is
     locked for the whole sweep (:class:`validation.sweeps.store.DirectoryLock`):
     a second sweep into it fails at once naming the holder, or with
-    ``wait_for_lock`` waits and then reuses the finished points.
+    ``wait_for_lock`` waits and then reuses the finished points.  ``point_threads``:
+    threads of a point computed in this process (its realisations split across them;
+    the numbers do not depend on it).
     """
     from tqdm.auto import tqdm
 
@@ -132,7 +135,8 @@ def run_sweep(
                     schedule = f"{workers} worker process(es), as asked"
                 if workers <= 1:
                     for p in rest:
-                        finished(p, evaluate_point(sd, p, 1, gains.get(point_key(p))))
+                        finished(p, evaluate_point(sd, p, point_threads,
+                                                   gains.get(point_key(p))))  # fmt: skip
                 elif rest:
                     _run_local(workers, sd, rest, finished, gains)
         finally:
