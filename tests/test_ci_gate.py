@@ -175,9 +175,9 @@ def test_progress_bars_only_on_a_terminal(monkeypatch):
     assert progress_enabled() is False
 
 
-def test_selftest_junit_has_the_unmodified_model_and_each_fault(tmp_path, capsys):
-    junit = tmp_path / "s.xml"
-    assert main(["selftest", "--faults", "gravity", "--junit", str(junit), "--quiet"]) == 0
+def test_selftest_junit_has_the_unmodified_model_and_each_fault(selftest_gravity):
+    code, _, junit, _, _ = selftest_gravity  # `selftest --faults gravity --junit FILE`
+    assert code == 0
     cases = [c.get("name") for c in ET.parse(junit).getroot().iter("testcase")]
     assert cases == ["unmodified_model", "fault.gravity"]
 

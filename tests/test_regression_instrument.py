@@ -180,11 +180,24 @@ def test_roundoff_mode_compares_every_number_to_its_stated_tolerance():
     assert [c.status for c in compare_with_baseline(near, base, "exact")].count("fail") == 2
 
 
-def test_selftest_cli(capsys):
+def test_selftest_cli(selftest_gravity, monkeypatch, capsys):
+    """The text output of `selftest --faults gravity`, from the session's run of the same
+    command (its rows replayed: same seed, realisations, faults and engine)."""
+    from validation import selftest
     from validation.cli import main
 
+    _, doc, _, recorded_args, result = selftest_gravity
+
+    def replay(*args):
+        assert args == recorded_args
+        return result
+
+    monkeypatch.setattr(selftest, "run_selftest", replay)
     assert main(["selftest", "--faults", "gravity"]) == 0
-    assert "gravity" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "gravity" in out and "unmodified model: pass" in out
+    assert "selftest of mujoco passes: 1 of 1 applicable faults flagged" in out
+    assert [r["fault"] for r in doc["faults"]] == ["gravity"] and doc["pass"] is True
     assert main(["selftest", "--faults", "nonsense"]) == 2
     assert "unknown fault" in capsys.readouterr().err
 
