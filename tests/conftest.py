@@ -21,6 +21,7 @@ XDIST_GROUPS = {
     "test_report_browser.py": "smoke",
     "test_ci_gate.py::test_selftest_junit_has_the_unmodified_model_and_each_fault": "selftest",
     "test_schemas.py::test_selftest_json_follows_its_schema": "selftest",
+    "test_regression_instrument.py::test_selftest_flags_every_catalogued_fault": "selftest",
     "test_regression_instrument.py::test_selftest_cli": "selftest",
     "test_case_exchange.py": "case_exchange",
     "test_engine_families.py": "engine_families",
@@ -50,6 +51,7 @@ def pytest_configure(config) -> None:
         os.nice(10)
 
 
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist: unknown without it
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup`` with the groups of :data:`XDIST_GROUPS` (pytest-xdist's scope
     scheduler: the largest groups first, then one test at a time to whichever worker is
@@ -84,12 +86,13 @@ def smoke_run_once(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def selftest_gravity(tmp_path_factory):
-    """One ``cip-validate selftest --faults gravity --json --junit`` for the whole session:
-    (exit status, its JSON document, its JUnit file, the arguments ``run_selftest`` got,
-    what it returned).  The tests of the selftest's JSON, JUnit and text outputs read this
-    one run (about 4 s of CPU each otherwise); the text test replays the recorded rows.
-    One pytest-xdist worker runs the tests that use it (``XDIST_GROUPS``)."""
+def selftest_run(tmp_path_factory):
+    """One ``cip-validate selftest --json --junit FILE`` for the whole session: the whole
+    catalogue at its listed sizes, seed 1, 2 realisations (the defaults): (exit status,
+    its JSON document, its JUnit file, the arguments ``run_selftest`` got, what it
+    returned).  The catalogue test and the tests of the JSON, JUnit and text outputs read
+    this one run (about 7 s of CPU each otherwise).  One pytest-xdist worker runs them
+    (``XDIST_GROUPS``)."""
     import contextlib
     import io
     import json
@@ -108,7 +111,6 @@ def selftest_gravity(tmp_path_factory):
     out = io.StringIO()
     with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out):
         mp.setattr(selftest, "run_selftest", recorded)
-        argv = ["selftest", "--faults", "gravity", "--json", "--junit", str(junit), "--quiet"]
-        code = main(argv)
+        code = main(["selftest", "--json", "--junit", str(junit), "--quiet"])
     ((args, result),) = calls
     return code, json.loads(out.getvalue()), junit, args, result
