@@ -2,7 +2,77 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
+
+#: Work units of pytest-xdist (``-n auto``, pyproject's addopts) that hold more than one test:
+#: one worker runs a group's tests one after another.  "realtime": the experiment's 50 Hz
+#: tests, which must not run beside each other; the others share a session or module
+#: fixture that each worker running one of their tests would compute again (a smoke run,
+#: a selftest run, a compared sweep...).  A key is a test file, or a file and a test
+#: (parameters dropped); every other test is a unit of its own.  (The ``xdist_group``
+#: mark would say this in the tests, but xdist 3.8's ``--dist loadgroup`` ignores it
+#: under pytest 9.2's node ids: pytest-xdist issue 1386.)
+XDIST_GROUPS = {
+    "test_experiment_server.py": "realtime",
+    "test_experiment_browser.py": "realtime",
+    "test_harness.py": "smoke",
+    "test_report_browser.py": "smoke",
+    "test_ci_gate.py::test_selftest_junit_has_the_unmodified_model_and_each_fault": "selftest",
+    "test_schemas.py::test_selftest_json_follows_its_schema": "selftest",
+    "test_regression_instrument.py::test_selftest_flags_every_catalogued_fault": "selftest",
+    "test_regression_instrument.py::test_selftest_cli": "selftest",
+    "test_case_exchange.py": "case_exchange",
+    "test_engine_families.py": "engine_families",
+    "test_engine_twins.py": "engine_twins",
+    "test_experiment_analyze.py": "experiment_analyze",
+    "test_paper_table.py": "paper_table",
+    "test_sweep_studies.py": "sweep_studies",
+}
+
+
+def xdist_unit(nodeid: str) -> str:
+    """The work unit of a test: its group in :data:`XDIST_GROUPS`, else the test itself."""
+    path, _, name = nodeid.partition("::")
+    module = path.rsplit("/", 1)[-1]
+    return XDIST_GROUPS.get(f"{module}::{name.split('[')[0]}") or XDIST_GROUPS.get(module, nodeid)
+
+
+#: the worker that runs the "realtime" group, first; the other workers run at a lower
+#: priority (``os.nice``), so their CPU-bound tests yield the cores to its 50 Hz loop,
+#: server and browser
+REALTIME_WORKER = "gw0"
+
+
+def pytest_configure(config) -> None:
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if worker is not None and worker != REALTIME_WORKER:
+        os.nice(10)
+
+
+@pytest.hookimpl(optionalhook=True)  # a hook of pytest-xdist: unknown without it
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadgroup`` with the groups of :data:`XDIST_GROUPS` (pytest-xdist's scope
+    scheduler: the largest groups first, then one test at a time to whichever worker is
+    free), the "realtime" group on :data:`REALTIME_WORKER`."""
+    if config.getoption("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class Grouped(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return xdist_unit(nodeid)
+
+        def _assign_work_unit(self, node) -> None:
+            queue = self.workqueue
+            if "realtime" in queue and list(queue) != ["realtime"]:
+                # the realtime worker takes it first; the others take any other unit
+                first = node.gateway.id == REALTIME_WORKER
+                queue.move_to_end("realtime", last=not first)
+            super()._assign_work_unit(node)
+
+    return Grouped(config, log)
 
 
 @pytest.fixture(scope="session")
@@ -13,3 +83,34 @@ def smoke_run_once(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("smoke")
     return main(["run", "--profile", "smoke", "--out", str(out)]), out
+
+
+@pytest.fixture(scope="session")
+def selftest_run(tmp_path_factory):
+    """One ``cip-validate selftest --json --junit FILE`` for the whole session: the whole
+    catalogue at its listed sizes, seed 1, 2 realisations (the defaults): (exit status,
+    its JSON document, its JUnit file, the arguments ``run_selftest`` got, what it
+    returned).  The catalogue test and the tests of the JSON, JUnit and text outputs read
+    this one run (about 7 s of CPU each otherwise).  One pytest-xdist worker runs them
+    (``XDIST_GROUPS``)."""
+    import contextlib
+    import io
+    import json
+
+    from validation import selftest
+    from validation.cli import main
+
+    junit = tmp_path_factory.mktemp("selftest") / "s.xml"
+    calls = []
+    real = selftest.run_selftest
+
+    def recorded(*args):
+        calls.append((args, real(*args)))
+        return calls[-1][1]
+
+    out = io.StringIO()
+    with pytest.MonkeyPatch.context() as mp, contextlib.redirect_stdout(out):
+        mp.setattr(selftest, "run_selftest", recorded)
+        code = main(["selftest", "--json", "--junit", str(junit), "--quiet"])
+    ((args, result),) = calls
+    return code, json.loads(out.getvalue()), junit, args, result

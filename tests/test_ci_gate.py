@@ -175,11 +175,13 @@ def test_progress_bars_only_on_a_terminal(monkeypatch):
     assert progress_enabled() is False
 
 
-def test_selftest_junit_has_the_unmodified_model_and_each_fault(tmp_path, capsys):
-    junit = tmp_path / "s.xml"
-    assert main(["selftest", "--faults", "gravity", "--junit", str(junit), "--quiet"]) == 0
-    cases = [c.get("name") for c in ET.parse(junit).getroot().iter("testcase")]
-    assert cases == ["unmodified_model", "fault.gravity"]
+def test_selftest_junit_has_the_unmodified_model_and_each_fault(selftest_run):
+    code, _, junit, _, (_, rows) = selftest_run  # `selftest --junit FILE`
+    assert code == 0
+    root = ET.parse(junit).getroot()
+    cases = [c.get("name") for c in root.iter("testcase")]
+    assert cases == ["unmodified_model", *(f"fault.{r['fault']}" for r in rows)]
+    assert "fault.gravity" in cases and root.get("failures") == "0"
 
 
 def test_an_engine_crash_in_engines_is_exit_4(tmp_path, capsys):

@@ -5,11 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("jax")
-pytest.importorskip("mujoco.mjx")
-
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
+
+
+@pytest.fixture(autouse=True)
+def _needs_mjx() -> None:
+    """Skip without JAX or MJX; imported when a test runs, not at collection (about 6 s
+    that every pytest process would pay)."""
+    pytest.importorskip("jax")
+    pytest.importorskip("mujoco.mjx")
+
 
 LOWERING = "/jax/core/compile/jaxpr_to_mlir_module_duration"
 

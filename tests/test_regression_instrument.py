@@ -17,7 +17,6 @@ from cipcore.registry import get_engine
 from reduced.twin import TwinParams, simulate_twin
 from validation.agreement import instrument_checks, measured_delay
 from validation.faults import CATALOGUE, make_fault
-from validation.selftest import run_selftest
 
 BETA = {"single": 20.306, "coupled": 21.032}
 TWIN_TOLERANCE = get_engine("mujoco").twin_tolerance_for("coupled")
@@ -112,9 +111,11 @@ def test_fault_backend_leaves_the_declared_model_alone():
     np.testing.assert_array_equal(m.opt.gravity, before)
 
 
-def test_selftest_flags_every_catalogued_fault():
-    """CI's fast subset: the whole catalogue at its listed sizes, 2 realisations."""
-    clean, rows = run_selftest(seed=1, n_realizations=2)
+def test_selftest_flags_every_catalogued_fault(selftest_run):
+    """CI's fast subset: the whole catalogue at its listed sizes, 2 realisations (the
+    session's `cip-validate selftest` run: run_selftest(seed=1, n_realizations=2))."""
+    code, doc, _, args, (clean, rows) = selftest_run
+    assert args == (1, 2, None, "mujoco", None) and code == 0 and doc["pass"] is True
     from validation.file_faults import FILE_CATALOGUE
     from validation.shared_faults import SHARED_CATALOGUE
 
@@ -180,11 +181,29 @@ def test_roundoff_mode_compares_every_number_to_its_stated_tolerance():
     assert [c.status for c in compare_with_baseline(near, base, "exact")].count("fail") == 2
 
 
-def test_selftest_cli(capsys):
+def test_selftest_cli(selftest_run, monkeypatch, capsys):
+    """`selftest --faults gravity` in text: the real run_selftest runs the unmodified model
+    and the gravity fault only; their verdicts (which checks fail) are replayed from the
+    session's whole-catalogue run (same seed, realisations and engine)."""
+    from validation import selftest, selftest_paths
     from validation.cli import main
 
+    _, _, _, args, (clean, rows) = selftest_run
+    by = {r["fault"]: r["by"] for r in rows if "path" not in r}
+    ran = []
+
+    def replayed(fault, seed, n_realizations, engine="mujoco", integrator=None):
+        assert (seed, n_realizations, engine, integrator) == (*args[:2], *args[3:])
+        ran.append(None if fault is None else fault.kind)
+        return clean if fault is None else by[fault.kind]
+
+    monkeypatch.setattr(selftest, "flagged_by", replayed)
+    monkeypatch.setattr(selftest_paths, "clean_failures", lambda seed, n: [])  # in `clean`
     assert main(["selftest", "--faults", "gravity"]) == 0
-    assert "gravity" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert ran == [None, "gravity"]
+    assert "gravity" in out and "unmodified model: pass" in out
+    assert "selftest of mujoco passes: 1 of 1 applicable faults flagged" in out
     assert main(["selftest", "--faults", "nonsense"]) == 2
     assert "unknown fault" in capsys.readouterr().err
 

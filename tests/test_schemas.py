@@ -46,8 +46,8 @@ def test_the_walker_rejects_what_breaks_a_schema():
         validate(doc, s)
 
 
-def test_selftest_json_follows_its_schema(capsys):
-    code, doc = _json(capsys, "selftest", "--faults", "gravity", "--json")
+def test_selftest_json_follows_its_schema(selftest_run):
+    code, doc, _, _, _ = selftest_run  # `selftest --json`
     assert code == 0
     validate(doc, "selftest")
     _also_jsonschema(doc, "selftest")
