@@ -358,6 +358,25 @@ def compare_series(
     return checks
 
 
+#: Why a float32 engine's series runs at Profile.amplitude_float32 (the checks' details say it).
+FLOAT32_AMPLITUDE_RULE = (
+    "float32 resolves the coupled rod to about l * 6e-8 m, an error against the series that "
+    "falls as 1/amplitude, and the rigid body's nonlinear residual grows as amplitude^2: the "
+    "largest amplitude on a 1-3-10 grid at which float64 MuJoCo's twin metrics stay within "
+    "their floor over the profile's series (quick, 8 x 100 s: 1e-5 m, its spectral slopes "
+    "1.5e-6 to 4.6e-6 off at 3e-5 m; paper, 16 x 200 s: 3e-7 m; smoke, 3 x 45 s: 1e-4 m)"
+)
+
+
+def series_amplitude_note(profile: Profile, precision: str) -> str:
+    """Why the series runs at its amplitude, where the engine's precision sets it
+    (:meth:`validation.profiles.Profile.series_amplitude`); '' at the profile's own."""
+    if profile.series_amplitude(precision) == profile.amplitude:
+        return ""
+    rule = FLOAT32_AMPLITUDE_RULE
+    return f" ({precision}'s series amplitude; {profile.amplitude:g} m in float64: {rule})"
+
+
 def series_checks(
     profile: Profile,
     threads: int | None,
@@ -374,17 +393,19 @@ def series_checks(
     from .conformance import run_envelope_twin
 
     checks, data = [], {}
+    precision = rigid_engine(engine).capabilities.precision
+    amplitude = profile.series_amplitude(precision)
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("series", model)
         args = (
-            model, beta, profile.amplitude, profile.series_duration,
+            model, beta, amplitude, profile.series_duration,
             profile.series_realizations, seed, profile.decimate, threads, files, engine,
             integrator,
         )  # fmt: skip
         full, red = run_pair(*args)
         twin = run_twin(*args)
         env = run_envelope_twin(
-            model, beta, profile.amplitude, profile.series_duration,
+            model, beta, amplitude, profile.series_duration,
             profile.series_realizations, seed, profile.decimate, threads,
             fields=SERIES_FIELDS, integrator=twin_integrator(model, files, engine, integrator),
         )  # fmt: skip
@@ -394,7 +415,7 @@ def series_checks(
         me = series_metrics(env, profile, 0.1, profile.spectrum_segment)
         max_angle = float(np.max(full.attrs["max_abs_angle"]))
         details = (
-            f"beta {beta}, amplitude {profile.amplitude:g} m, "
+            f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
             f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
             f"largest |theta| {max_angle:.2g} rad"
         )

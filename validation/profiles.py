@@ -36,6 +36,9 @@ class Profile:
     # m: initial balancing error; near threshold the single balancer grows ~1e4-fold in
     # bursts over 200 s, so 1e-8 keeps every profile's series deep in the linear regime
     amplitude: float = 1e-8
+    # m: the series' initial balancing error for an engine whose state is float32
+    # (Capabilities.precision, Profile.series_amplitude): agreement.FLOAT32_AMPLITUDE_RULE
+    amplitude_float32: float = 1e-5
     series_duration: float = 100.0
     series_realizations: int = 8
     decimate: int = 5  # record every 5 ms
@@ -101,6 +104,14 @@ class Profile:
     def as_dict(self) -> dict:
         return asdict(self)
 
+    def series_amplitude(self, precision: str) -> float:
+        """The time series' initial balancing error (m) for an engine whose state has
+        ``precision`` (``Capabilities.precision``: "float64" or "float32")."""
+        amplitudes = {"float64": self.amplitude, "float32": self.amplitude_float32}
+        if precision not in amplitudes:
+            raise ValueError(f"precision must be one of {sorted(amplitudes)}, got {precision!r}")
+        return amplitudes[precision]
+
     def seed_for(self, *labels: object) -> int:
         """A seed derived from the profile's seed and a label (stable across runs)."""
         key = zlib.crc32("/".join(map(str, labels)).encode())
@@ -115,6 +126,7 @@ PROFILES = {
         lyapunov_realizations=16,
         series_duration=200.0,
         series_realizations=16,
+        amplitude_float32=3e-7,  # 16 x 200 s: twin slopes 4.3e-6 off at 1e-6 m in float64
         scan_duration=10.0,
         scan_realizations=16,
         beta_star_duration=2000.0,
@@ -141,6 +153,7 @@ PROFILES = {
         lyapunov_curve_gains=(19.0, 21.0, 23.0),
         series_duration=45.0,
         series_realizations=3,
+        amplitude_float32=1e-4,  # 3 x 45 s: twin slopes 2.2e-6, 4.5e-6 off at 3e-4 m in float64
         scan_amplitudes=(1e-5, 1e-3, 3e-1),
         scan_duration=10.0,
         scan_realizations=3,
