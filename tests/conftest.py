@@ -1,4 +1,4 @@
-"""Fixtures shared across test modules."""
+"""Fixtures shared across test modules, and how pytest-xdist spreads the tests over workers."""
 
 from __future__ import annotations
 
