@@ -5,11 +5,9 @@ Each profile runs once as a fresh process (``python -m validation.cli run
 ``--no-figures``); the script prints the whole process's wall time, its CPU
 time (user + system of it and its children), the run's own elapsed time, and
 per stage the wall time and CPU time the run records (``timings_s``,
-``cpu_s`` of ``results.json``; with more than one worker the reduced model's
-stages run beside the engine stages and ``cpu_s`` is one total, per stage with
-``--workers 1``), with the load average before and after each run.  On a
-shared machine the wall times follow the load; the CPU times much less, so
-compare those between runs made under different loads.
+``cpu_s`` of ``results.json``), with the load average before and after each
+run.  On a shared machine the wall times follow the load; the CPU times much
+less, so compare those between runs made under different loads.
 
 Other options go to ``cip-validate run`` as they are (e.g. ``--baseline
 validation/data/baseline_quick.json``: its regression line is printed too).
@@ -73,9 +71,6 @@ def report(r: dict) -> None:
     for name, w in r["stages_wall_s"].items():
         c = r["stages_cpu_s"].get(name)
         print(f"  {name:28s} {w:8.2f} {'' if c is None else f'{c:8.2f}'}")
-    for name, c in r["stages_cpu_s"].items():  # "all stages": the two lanes side by side
-        if name not in r["stages_wall_s"]:
-            print(f"  {name:28s} {'':8s} {c:8.2f}")
     for line in r["regression"]:
         print(f"  {line}")
     for line in r["stderr_tail"]:

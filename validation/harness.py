@@ -23,13 +23,8 @@ and tolerances (its twin and twin tolerance are its own).
 The report's two clips and its paper figures are drawn by child processes
 started with the run (the figures' process gets its data once the STCC stage
 is done), so they overlap the stages; ``--no-figures`` starts none of them.
-With more than one worker the stages of :data:`BESIDE` (the reduced model's)
-run on a second lane (:mod:`validation.lane`) beside the engine stages, each
-lane on ``workers`` threads; results are still kept in stage order.
-Inside a run BLAS runs on one thread; the CPU seconds (this process and its
-reaped children) are in ``results.json`` as ``cpu_s``: per stage when the
-stages run one after another (``workers=1``), else one total (``"all stages"``:
-the lanes' CPU seconds cannot be told apart).
+Inside a run BLAS runs on one thread; the per-stage CPU seconds (this process
+and its reaped children) are in ``results.json`` as ``cpu_s``.
 
 Nothing finished is lost: each stage's outputs are written to
 ``DIR/stages/`` as soon as it finishes, and ``DIR/results.json`` is rewritten
@@ -62,7 +57,6 @@ from cipcore.params import BalanceParams, ParameterError
 from . import agreement, paper
 from .checklog import with_limit
 from .fingerprint import numerics_fingerprint
-from .lane import Lane
 from .profiles import PAPER_BETA, Profile
 from .report import write_json
 from .stats import FAIL, INCONCLUSIVE, PASS
@@ -76,10 +70,6 @@ STAGES = ("conformance and anchors", "lambda1 agreement", "time-series agreement
           "lambda1 curve", "RMS and velocity", "STCC and spectra", "robustness",
           "nonlinear stick", "rod-length study", "figures")  # fmt: skip
 STAGE_DIR = "stages"
-#: the stages computed on the second lane (:mod:`validation.lane`) when a run has more
-#: than one worker: the reduced model's, independent of the engine stages
-BESIDE = ("critical gains", "lambda1 curve", "RMS and velocity", "STCC and spectra",
-          "robustness", "nonlinear stick")  # fmt: skip
 
 
 class StageCrashed(RuntimeError):
@@ -336,17 +326,6 @@ def run_validation(
             return _figures(out_dir, state, profile, rendering, drawing)
         return _figures(out_dir, state, profile)
 
-    # the reduced model's stages on a second lane beside the engine stages (both cores
-    # busy through each stage's serial parts); the engine stages after them are computed
-    # ahead while the lane is busy
-    lane, lane_saved, ahead = None, {}, {}
-    c_run = _cpu_seconds()
-    if workers is None or workers > 1:
-        lane_saved = {n: store.load(n) for n in BESIDE} if resume else {}
-        todo = [n for n in BESIDE if lane_saved.get(n) is None]
-        lane = Lane(todo, compute) if todo else None
-    later = [n for n in STAGES[STAGES.index(BESIDE[-1]) + 1 :] if n != "figures"]
-
     try:
         for name in STAGES:
             bar.set_postfix_str(name)
@@ -354,36 +333,15 @@ def run_validation(
             inputs = file_inputs if name in MODEL_FILE_STAGES else {}
             # the figures draw every stage: redrawn when any stage was recomputed here
             stale = name == "figures" and len(reused) < len(done)
-            if name in lane_saved:
-                saved = lane_saved[name]
-            elif name in ahead:
-                saved = None
-            else:
-                saved = store.load(name, inputs) if resume and not stale else None
+            saved = store.load(name, inputs) if resume and not stale else None
             if saved is not None:
                 state[name], timings[name] = saved["value"], saved["seconds"]
                 reused.append(name)
             else:
                 c = _cpu_seconds()
-                if lane is not None and name in lane:
-                    for n in later if not lane.done(name) else ():  # ahead, while it works
-                        if n not in ahead and not (resume and store.load(n) is not None):
-                            ta = time.perf_counter()
-                            try:
-                                ahead[n] = (compute(n), round(time.perf_counter() - ta, 2))
-                            except Exception as exc:  # raised in its turn, naming its stage
-                                ahead[n] = exc
-                    state[name], timings[name] = lane.result(name)
-                elif name in ahead:
-                    got = ahead.pop(name)
-                    if isinstance(got, Exception):
-                        raise got
-                    state[name], timings[name] = got
-                else:
-                    state[name] = compute(name)
-                    timings[name] = round(time.perf_counter() - t, 2)
-                if lane is None:
-                    cpu[name] = round(_cpu_seconds() - c, 2)
+                state[name] = compute(name)
+                timings[name] = round(time.perf_counter() - t, 2)
+                cpu[name] = round(_cpu_seconds() - c, 2)
                 store.save(name, {"value": state[name], "seconds": timings[name],
                                   "inputs": inputs})  # fmt: skip
             done.append(name)
@@ -398,8 +356,6 @@ def run_validation(
                 on_stage(name, timings[name], name in reused)
     except KeyboardInterrupt:
         bar.close()
-        if lane is not None:
-            lane.stop()  # not waited for: a daemon thread
         raise RunInterrupted(list(done), out_dir) from None
     except (ParameterError, WriteError):  # bad input or an unwritable output: not a crash
         bar.close()
@@ -413,14 +369,10 @@ def run_validation(
         bar.close()  # an error message then starts on its own line
         raise
     finally:
-        if lane is not None and not isinstance(sys.exc_info()[1], KeyboardInterrupt):
-            lane.stop(wait=True)  # a crash: the lane's current stage ends before we return
         blas.restore_original_limits()
         stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
         stop_paper_figures(drawing or worker)
     bar.close()
-    if lane is not None:  # side by side: one total
-        cpu = {"all stages": round(_cpu_seconds() - c_run, 2)}
     results = _results(profile, state, timings, workers, t0, model_files)
     results.update(engine=_engine_record(engine, integrator, model_files))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
