@@ -65,7 +65,10 @@ consecutive realisations in its own :class:`DrakeRollout`; every realisation has
 its own context and element-wise forces, so any split gives the same numbers to
 the bit.  (Until this was wired through the engine, ``threads`` split the
 realisations across threads, which the lock serialised: the earlier measurements
-of 0.98x and 0.91x for two "processes" measured those threads.)
+of 0.98x and 0.91x for two "processes" measured those threads.)  ``python
+benchmarks/bench_engines.py --engines drake --realizations 8 --duration 2
+--threads 1,2`` on an idle 2-core machine (load 0.2): 9.43e3 and 1.68e4
+realisation-steps/s, 1.78 times.
 """
 
 from __future__ import annotations
