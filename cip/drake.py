@@ -78,31 +78,53 @@ import numpy as np
 
 from cipcore.engine import Capabilities
 
-from .drake_plant import CIPGeometry, build_plant, generalized_forces, geometry_from_mujoco
+from .drake_plant import build_plant, generalized_forces, geometry_from_mujoco
 from .engines import RigidBodyEngine
 from .mjcf_params import ModelMapping
 
 
-class _Block:
-    """One Drake ``Context`` per realisation of a block, stepped one SAP step at a time.
+class DrakeRollout:
+    """:class:`cip.runner.RolloutBackend` stepping the CIP in Drake's discrete ``MultibodyPlant``.
 
-    The numbers of a realisation depend only on its own state and controls (one plant
-    context each, the forces computed element-wise), so any split of the realisations
-    into blocks gives bit-identical results.
+    One Drake ``Context`` per realisation, stepped one SAP step at a time.  The
+    numbers of a realisation depend only on its own state and controls (one plant
+    context each, the forces computed element-wise), so any split of the
+    realisations into blocks gives bit-identical results.
+
+    Parameters
+    ----------
+    model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
+        physical parameter and of the state layout.
+    n_realizations : number of realisations (one Drake ``Context`` each).
+    threads : ignored.  ``ExecuteForcedEvents`` holds the GIL (two threads stepping
+        two plants took as long as one thread stepping both), so the engine's
+        ``threads`` are worker processes (:class:`cip.workers.ProcessBlocks`), each
+        building this class for a consecutive block of realisations.
     """
 
-    def __init__(self, g: CIPGeometry, n_realizations: int) -> None:
+    def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
+        g = geometry_from_mujoco(model)
         self.geometry = g
-        self.cip = build_plant(g)
-        plant = self.cip.plant
-        self.plant = plant
+        self.dt = g.timestep
+        c = self.cip = build_plant(g)
+        plant = self.plant = c.plant
         self.port = plant.get_applied_generalized_force_input_port()
+        #: one context per realisation
         self.contexts = [plant.CreateDefaultContext() for _ in range(n_realizations)]
         nq = plant.num_positions()
-        c = self.cip
+        self.nx = nq + plant.num_velocities()
         self.theta, self.v_cart, self.omega = c.q_theta, nq + c.v_x, nq + c.v_theta
+        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
+        self.mj_index = np.r_[
+            1 + np.array(g.qpos_x), 1 + np.array(g.qpos_theta),
+            1 + model.nq + np.array(g.dof_x), 1 + model.nq + np.array(g.dof_theta),
+        ]  # fmt: skip
+        self.drake_index = np.r_[c.q_x, c.q_theta, nq + c.v_x, nq + c.v_theta]
+        self.motor = np.array(g.motor_id)
+        self.gear = np.array(g.motor_gear)
+        self._failed = 0
 
-    def advance(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int]:
+    def _advance(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int]:
         """States (R, n, nx) after each of n steps from Drake states ``x`` (R, nx) under
         cart forces ``u`` (R, n, C) (N); and the number of failed steps."""
         plant, port, cip = self.plant, self.port, self.cip
@@ -134,48 +156,12 @@ class _Block:
             xs[:, k] = x
         return xs, failed
 
-
-class DrakeRollout:
-    """:class:`cip.runner.RolloutBackend` stepping the CIP in Drake's discrete ``MultibodyPlant``.
-
-    Parameters
-    ----------
-    model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
-        physical parameter and of the state layout.
-    n_realizations : number of realisations (one Drake ``Context`` each).
-    threads : ignored.  ``ExecuteForcedEvents`` holds the GIL (two threads stepping
-        two plants took as long as one thread stepping both), so the engine's
-        ``threads`` are worker processes (:class:`cip.workers.ProcessBlocks`), each
-        building this class for a consecutive block of realisations; the split does
-        not change any number (:class:`_Block`).
-    """
-
-    def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = geometry_from_mujoco(model)
-        self.dt = g.timestep
-        self.block = _Block(g, n_realizations)
-        c, plant = self.block.cip, self.block.plant
-        self.cip, self.plant = c, plant
-        #: one context per realisation
-        self.contexts = self.block.contexts
-        nq = plant.num_positions()
-        self.nx = nq + plant.num_velocities()
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
-        self.mj_index = np.r_[
-            1 + np.array(g.qpos_x), 1 + np.array(g.qpos_theta),
-            1 + model.nq + np.array(g.dof_x), 1 + model.nq + np.array(g.dof_theta),
-        ]  # fmt: skip
-        self.drake_index = np.r_[c.q_x, c.q_theta, nq + c.v_x, nq + c.v_theta]
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
-        self._failed = 0
-
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         R, n = ctrl.shape[:2]
         x = np.zeros((R, self.nx))
         x[:, self.drake_index] = state[:, self.mj_index]
         u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
-        xs, failed = self.block.advance(x, u)
+        xs, failed = self._advance(x, u)
         self._failed += failed
         out[...] = state[:, None, :]
         out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)

@@ -91,11 +91,14 @@ def _serve(conn: Connection, backend: type, model: Any, n_realizations: int) -> 
         conn.send((out, block.warnings()))
 
 
-def _receive(conn: Connection) -> Any:
-    msg = conn.recv()
-    if isinstance(msg, BaseException):
-        raise msg
-    return msg
+def _replies(conns: list[Connection]) -> list[Any]:
+    """One reply from every worker (so that no answer is left in a pipe), then the
+    first error among them raised here."""
+    replies = [conn.recv() for conn in conns]
+    for reply in replies:
+        if isinstance(reply, BaseException):
+            raise reply
+    return replies
 
 
 def _picklable(*objs: object) -> bool:
@@ -144,8 +147,7 @@ class ProcessBlocks:
             self.conns.append(parent)
             self.procs.append(proc)
         self._finalizer = weakref.finalize(self, ProcessBlocks._stop, self.conns, self.procs)
-        for conn in self.conns:
-            _receive(conn)
+        _replies(self.conns)  # "ready", or the error of building a block
         self._warnings = [0] * workers
 
     @staticmethod
@@ -170,11 +172,7 @@ class ProcessBlocks:
         b = self.bounds
         for i, conn in enumerate(self.conns):
             conn.send((state[b[i] : b[i + 1]], ctrl[b[i] : b[i + 1]]))
-        replies = [conn.recv() for conn in self.conns]  # every worker answers, then raise
-        for reply in replies:
-            if isinstance(reply, BaseException):
-                raise reply
-        for i, (states, warned) in enumerate(replies):
+        for i, (states, warned) in enumerate(_replies(self.conns)):
             out[b[i] : b[i + 1]], self._warnings[i] = states, warned
 
     def warnings(self) -> int:
