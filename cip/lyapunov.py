@@ -32,36 +32,15 @@ from .model import CIPParams
 from .runner import CIPRunner, RolloutBackend
 
 
-def _deviation_norm(r: CIPRunner, state: np.ndarray) -> np.ndarray:
-    x = state[:, r.i_x]
-    x = x - x.mean(axis=1, keepdims=True)
-    s = (x**2).sum(1)
-    s += ((r.L * state[:, r.i_th]) ** 2).sum(1)
-    s += (state[:, r.i_vx] ** 2).sum(1)
-    s += ((r.L * state[:, r.i_om]) ** 2).sum(1)
-    s += (r.e_hist**2).sum((1, 2)) + (r.edot_hist**2).sum((1, 2))
-    return np.sqrt(s)
-
-
-def _rescale(r: CIPRunner, c: np.ndarray) -> None:
-    """Scale the deviation of every realisation by c (R,), dropping the common drift."""
-    st = r.state
-    x = st[:, r.i_x]
-    st[:, r.i_x] = (x - x.mean(axis=1, keepdims=True)) * c[:, None]
-    for idx in (r.i_th, r.i_vx, r.i_om):
-        st[:, idx] *= c[:, None]
-    r.e_hist *= c[:, None, None]
-    r.edot_hist *= c[:, None, None]
-
-
 class _Renormaliser:
-    """:func:`_deviation_norm` and :func:`_rescale` of one runner, the index work done once.
+    """The Benettin deviation of one runner's realisations: its norm and its rescaling.
 
-    Called after every chunk (tau of simulated time), so their numpy calls count: one
-    gather for the norm and, where the cart and pendulum coordinates fill the state's
-    qpos and qvel (the CIP models), one in-place product for the rescaling.  Every
-    operation and sum is the one of those functions, in the same order: the same
-    numbers bit for bit.
+    The norm (m, per realisation) weighs the carts' positions (their common drift
+    dropped: it is neutral), the angles times L, the cart velocities, the angular
+    velocities times L and the delay histories.  Called after every chunk (tau of
+    simulated time), so the index work is done once: one gather for the norm and,
+    where the cart and pendulum coordinates fill the state's qpos and qvel (the CIP
+    models), one in-place product for the rescaling.
     """
 
     def __init__(self, r: CIPRunner) -> None:
@@ -75,7 +54,7 @@ class _Renormaliser:
         self.mean: np.ndarray | None = None
 
     def norm(self, r: CIPRunner) -> np.ndarray:
-        """:func:`_deviation_norm` of the runner's state (R,)."""
+        """The deviation's norm (R,) of the runner's state."""
         nc = r.nc
         g = r.state[:, self.cols]
         self.mean = g[:, :nc].mean(axis=1, keepdims=True)
@@ -88,13 +67,17 @@ class _Renormaliser:
         return np.sqrt(s)
 
     def rescale(self, r: CIPRunner, c: np.ndarray) -> None:
-        """:func:`_rescale` by c (R,), right after :meth:`norm` of the same state."""
-        if self.block is None or self.mean is None:
-            _rescale(r, c)
-            return
+        """Scale every realisation's deviation by c (R,), dropping the carts' common
+        drift; right after :meth:`norm` of the same state."""
+        if self.mean is None:
+            raise RuntimeError("rescale needs the norm of the same state first")
         st = r.state
-        st[:, r.i_x] -= self.mean  # the common drift dropped
-        st[:, self.block] *= c[:, None]
+        st[:, r.i_x] -= self.mean
+        if self.block is not None:
+            st[:, self.block] *= c[:, None]
+        else:
+            for idx in (r.i_x, r.i_th, r.i_vx, r.i_om):
+                st[:, idx] *= c[:, None]
         r.e_hist *= c[:, None, None]
         r.edot_hist *= c[:, None, None]
         self.mean = None
@@ -135,27 +118,25 @@ def lyapunov_full(
     noise = GainNoise(seed, n_realizations, nc)
     transient_steps = round(transient / params.dt)
     logsum = np.zeros(n_realizations)
-    runners: dict[int, CIPRunner] = {}
-    renorm: dict[int, _Renormaliser] = {}
+    runners: dict[int, tuple[CIPRunner, _Renormaliser]] = {}
     d = params.delay_steps
     # accumulation starts with the first chunk that ends after the transient
     start = (transient_steps // d) * d
 
     def work(block: slice, xi: np.ndarray, step: int) -> None:
-        r = runners.get(block.start)
-        if r is None:
-            r = runners[block.start] = _start(
+        if block.start not in runners:
+            runners[block.start] = _start(
                 model, params, physical, block, seed, epsilon, backend, mj_model
             )
-            renorm[block.start] = _Renormaliser(r)
+        r, renorm = runners[block.start]
         n = xi.shape[1]
         r.advance(xi)
-        norm = renorm[block.start].norm(r)
+        norm = renorm.norm(r)
         if not np.all(np.isfinite(norm)):
             raise FloatingPointError(f"non-finite state at t = {(step + n) * params.dt:.4g} s")
         if step + n > transient_steps:
             logsum[block] += np.log(norm / epsilon)
-        renorm[block.start].rescale(r, epsilon / norm)
+        renorm.rescale(r, epsilon / norm)
 
     run_blocks(noise, n_steps, work, threads=threads, chunk_steps=d,
                progress=progress and "mujoco lyapunov")  # fmt: skip
@@ -176,8 +157,9 @@ def _start(
     epsilon: float,
     backend: type[RolloutBackend] | None = None,
     mj_model: object = None,
-) -> CIPRunner:
-    """A runner for realisations ``block`` at a random deviation of norm epsilon.
+) -> tuple[CIPRunner, _Renormaliser]:
+    """A runner for realisations ``block`` at a random deviation of norm epsilon, and
+    the renormaliser of its deviation.
 
     Angles and delay history of realisation k come from the independent stream
     ``SeedSequence(seed, spawn_key=(k, 1))``; in the coupled model both angles
@@ -193,5 +175,6 @@ def _start(
         r.e_hist[j] = rng.standard_normal((r.d, r.nc))
     if r.nc == 2:
         r.state[:, r.i_th] = r.state[:, r.i_th].mean(axis=1, keepdims=True)
-    _rescale(r, epsilon / _deviation_norm(r, r.state))
-    return r
+    renorm = _Renormaliser(r)
+    renorm.rescale(r, epsilon / renorm.norm(r))
+    return r, renorm
