@@ -405,9 +405,8 @@ def series_checks(
         full, red = run_pair(*args)
         twin = run_twin(*args)
         env = run_envelope_twin(
-            model, beta, amplitude, profile.series_duration,
-            profile.series_realizations, seed, profile.decimate, threads,
-            fields=SERIES_FIELDS, integrator=twin_integrator(model, files, engine, integrator),
+            *args[:8], fields=SERIES_FIELDS,
+            integrator=twin_integrator(model, files, engine, integrator),
         )  # fmt: skip
         mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
         mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
@@ -471,6 +470,7 @@ def amplitude_scan(
     seg = profile.scan_duration / 4
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("scan", model)
+        stepper = twin_integrator(model, files, engine, integrator)
         for amp in profile.scan_amplitudes:
             args = (
                 model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
@@ -479,9 +479,7 @@ def amplitude_scan(
             full, red = run_pair(*args)
             twin = run_twin(*args)
             env = run_envelope_twin(
-                model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
-                profile.decimate, threads, fields=("balancing_error",),
-                integrator=twin_integrator(model, files, engine, integrator),
+                *args[:8], fields=("balancing_error",), integrator=stepper
             )  # fmt: skip
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
             et, ee = twin["balancing_error"], env["balancing_error"]
