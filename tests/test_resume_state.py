@@ -128,3 +128,29 @@ def test_figure_child_process_failure_is_reported_and_an_unused_one_is_ended(tmp
     idle = harness.spawn_figure_worker(tmp_path)
     harness.stop_paper_figures(idle)
     assert idle[0].poll() is not None
+
+
+def test_figure_child_process_draws_the_rod_length_figures_after_the_paper_job(tmp_path):
+    """The figure worker takes a second job, the rod-length study's dataset, and draws
+    its two figures (max angle, agreement against l / L); its job files are removed."""
+    xr = pytest.importorskip("xarray")
+    import numpy as np
+
+    (tmp_path / harness.STAGE_DIR).mkdir()
+    shape = (2, 2, 3)
+    rng = np.random.default_rng(0)
+    ds = xr.Dataset(
+        {name: (("rod_length_ratio", "amplitude", "realization"), rng.uniform(0.01, 1, shape))
+         for name in ("max_angle", "agreement")}
+        | {"divergence_time": (("rod_length_ratio", "amplitude", "realization"),
+                               np.full(shape, np.inf))},
+        coords={"rod_length_ratio": [0.2, 2.0], "amplitude": [1e-3, 0.1],
+                "realization": [0, 1, 2]},
+    )  # fmt: skip
+    worker = harness.spawn_figure_worker(tmp_path)
+    files = harness.finish_paper_figures(worker, tmp_path, ds)
+    assert [f.name for f in files] == ["fig_rod_length_max_angle.png",
+                                       "fig_rod_length_agreement.png"]  # fmt: skip
+    assert all(f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for f in files)
+    harness.stop_paper_figures(worker)
+    assert not list((tmp_path / harness.STAGE_DIR).glob("figures-*job.pkl"))

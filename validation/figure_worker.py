@@ -1,11 +1,16 @@
-"""The report's paper figures drawn in a child process: ``python -m validation.figure_worker``.
+"""The report's figures drawn in a child process: ``python -m validation.figure_worker``.
 
 Started with the run (:func:`validation.harness.spawn_figure_worker`), it
 imports matplotlib and the figure code while the stages compute, then reads
-one line from stdin: the path of a pickle of ``{"out_dir": str, "kwargs":
-dict}`` written once the stages the figures draw have finished.  It writes
-:func:`validation.plots.paper_figures` into ``out_dir`` and prints their
-paths, one a line.  An empty stdin (the run ended first) ends it at once.
+jobs from stdin, one a line: the path of a pickle of ``{"out_dir": str,
+"kind": "paper" | "rod", "kwargs": dict}``.  A ``paper`` job (written once
+the stages the paper figures draw have finished) draws
+:func:`validation.plots.paper_figures`; a ``rod`` job (written once the
+rod-length study has finished) draws its two figures
+(:func:`validation.sweeps.report.plot_metric` of the study's dataset).  The
+figures go into ``out_dir``; their paths are printed, one a line, in the
+order of the jobs.  The end of stdin (the run finished, or ended first) ends
+it.
 """
 
 from __future__ import annotations
@@ -20,13 +25,32 @@ def main() -> int:
 
     from .plots import paper_figures
 
-    line = sys.stdin.readline().strip()
-    if not line:
-        return 0
-    job = pickle.loads(Path(line).read_bytes())
-    for path in paper_figures(Path(job["out_dir"]), **job["kwargs"]):
-        print(path)
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        job = pickle.loads(Path(line.strip()).read_bytes())
+        out_dir = Path(job["out_dir"])
+        if job.get("kind", "paper") == "paper":
+            paths = paper_figures(out_dir, **job["kwargs"])
+        else:
+            paths = rod_figures(out_dir, **job["kwargs"])
+        for path in paths:
+            print(path, flush=True)
     return 0
+
+
+#: the rod-length study's metrics drawn against the rod length ratio l / L
+ROD_METRICS = ("max_angle", "agreement")
+
+
+def rod_figures(out_dir: Path, rod_ds) -> list[Path]:
+    """``fig_rod_length_<metric>.png`` of the rod-length study's dataset, per
+    :data:`ROD_METRICS`, against ``rod_length_ratio``."""
+    from .sweep import plot_metric
+
+    return [plot_metric(rod_ds, metric, "rod_length_ratio",
+                        out_dir / f"fig_rod_length_{metric}.png")
+            for metric in ROD_METRICS]  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -20,9 +20,11 @@ and tolerances (its twin and twin tolerance are its own).
 5. the rod-length study;
 6. figures redoing the paper's (from both models where it makes sense).
 
-The report's two clips and its paper figures are drawn by child processes
-started with the run (the figures' process gets its data once the STCC stage
-is done), so they overlap the stages; ``--no-figures`` starts none of them.
+The report's two clips and its figures are drawn by child processes started
+with the run (the figures' process gets the paper figures' data once the STCC
+stage is done and the rod-length study's dataset once that stage is done, both
+before robustness and the nonlinear stick), so they overlap the stages;
+``--no-figures`` starts none of them.
 Inside a run BLAS runs on one thread; the per-stage CPU seconds (this process
 and its reaped children) are in ``results.json`` as ``cpu_s``.
 
@@ -65,10 +67,13 @@ from .versions import package_versions
 __all__ = ["STAGES", "RunInterrupted", "StageCrashed", "compile_note", "package_versions",
            "run_validation"]  # fmt: skip
 
+#: the stages in the order they run: the paper figures' stages first, then the rod-length
+#: study, so that the figure process draws both while robustness and the nonlinear stick
+#: compute
 STAGES = ("conformance and anchors", "lambda1 agreement", "time-series agreement",
           "amplitude scan", "critical gains",
-          "lambda1 curve", "RMS and velocity", "STCC and spectra", "robustness",
-          "nonlinear stick", "rod-length study", "figures")  # fmt: skip
+          "lambda1 curve", "RMS and velocity", "STCC and spectra", "rod-length study",
+          "robustness", "nonlinear stick", "figures")  # fmt: skip
 STAGE_DIR = "stages"
 
 
@@ -347,6 +352,8 @@ def run_validation(
             done.append(name)
             if worker and drawing is None and set(PAPER_FIGURE_STAGES) <= set(done):
                 drawing = start_paper_figures(out_dir, state, worker)
+            if drawing and name == "rod-length study":
+                _send_figure_job(drawing, out_dir, "rod", {"rod_ds": state[name][2]})
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
             partial.update(engine=_engine_record(engine, integrator, model_files))
@@ -456,16 +463,32 @@ def start_paper_figures(
     out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any, Any] | None = None
 ) -> tuple[Any, Path, Any, Any]:
     """Draw the paper figures in the child process ``worker`` (:func:`spawn_figure_worker`,
-    started here if None) while the later stages run; returns it."""
-    proc, job, out, err = worker or spawn_figure_worker(out_dir)
-    _atomic(job, pickle.dumps({"out_dir": str(out_dir), "kwargs": _paper_figure_data(state)},
-                              protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
+    started here if None) while the later stages run; returns it.  Its stdin stays open
+    for the rod-length study's figures (:func:`finish_paper_figures`)."""
+    drawing = worker or spawn_figure_worker(out_dir)
+    _send_figure_job(drawing, out_dir, "paper", _paper_figure_data(state))
+    return drawing
+
+
+def _figure_job_files(job: Path) -> tuple[Path, Path]:
+    """The figure worker's job files: the paper figures' and the rod-length study's."""
+    return job, job.with_name("figures-rod-job.pkl")
+
+
+def _send_figure_job(
+    drawing: tuple[Any, Path, Any, Any], out_dir: Path, kind: str, kwargs: dict
+) -> None:
+    """One job for the figure worker (:mod:`validation.figure_worker`): its pickle, then
+    its path on the worker's stdin."""
+    proc, job, _, _ = drawing
+    path = _figure_job_files(job)[kind == "rod"]
+    _atomic(path, pickle.dumps({"out_dir": str(out_dir), "kind": kind, "kwargs": kwargs},
+                               protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
     try:
-        proc.stdin.write(f"{job}\n")
-        proc.stdin.close()
+        proc.stdin.write(f"{path}\n")
+        proc.stdin.flush()
     except OSError:  # the worker died early: finish_paper_figures reports why
         pass
-    return proc, job, out, err
 
 
 def stop_paper_figures(drawing: tuple[Any, Path, Any, Any] | None) -> None:
@@ -483,14 +506,26 @@ def stop_paper_figures(drawing: tuple[Any, Path, Any, Any] | None) -> None:
             pass
     out.close()
     err.close()
-    job.unlink(missing_ok=True)
+    for path in _figure_job_files(job):
+        path.unlink(missing_ok=True)
 
 
-def finish_paper_figures(drawing: tuple[Any, Path, Any, Any]) -> list[Path]:
-    """The figures the :func:`start_paper_figures` process drew; raises if it failed."""
+def finish_paper_figures(
+    drawing: tuple[Any, Path, Any, Any], out_dir: Path | None = None, rod_ds: Any = None
+) -> list[Path]:
+    """The figures the :func:`start_paper_figures` process drew, and the rod-length
+    study's (dataset ``rod_ds``, drawn into ``out_dir``) where given; raises if it
+    failed."""
     proc, job, out, err = drawing
+    if rod_ds is not None and out_dir is not None:
+        _send_figure_job(drawing, out_dir, "rod", {"rod_ds": rod_ds})
+    try:
+        proc.stdin.close()
+    except OSError:
+        pass
     proc.wait()
-    job.unlink(missing_ok=True)
+    for path in _figure_job_files(job):
+        path.unlink(missing_ok=True)
     if proc.returncode != 0:
         err.seek(0)
         why = (err.read().strip().splitlines() or ["no output"])[-1]
@@ -504,24 +539,22 @@ def _figures(
     rendering: list[tuple[Path, Any, Any]] | None = None,
     drawing: tuple[Any, Path, Any, Any] | None = None,
 ) -> list[Path]:  # fmt: skip
-    """Every figure and clip; ``rendering`` and ``drawing``: the clips' and the paper
-    figures' processes where already started (else the figures are drawn here)."""
-    from .sweep import plot_metric
+    """Every figure and clip; ``rendering`` and ``drawing``: the clips' and the figures'
+    processes where already started (else the figures are drawn here).  The figure
+    process draws the rod-length study's figures too, after the paper's."""
+    from .figure_worker import rod_figures
 
     _, _, rod_ds = state["rod-length study"]
     if rendering is None:  # child processes, rendering while the figures are drawn
         rendering = start_clips(out_dir, profile)
     try:
-        files = []
         if drawing is None:
             from . import plots  # matplotlib: imported by runs that draw figures only
 
             files = plots.paper_figures(out_dir, **_paper_figure_data(state))
-        for metric in ("max_angle", "agreement"):
-            png = out_dir / f"fig_rod_length_{metric}.png"
-            files.append(plot_metric(rod_ds, metric, "rod_length_ratio", png))
-        if drawing is not None:  # drawn beside the last stages, in the order above
-            files = finish_paper_figures(drawing) + files
+            files += rod_figures(out_dir, rod_ds)
+        else:  # drawn beside the last stages, in the order above (both jobs sent)
+            files = finish_paper_figures(drawing)
     except BaseException:
         stop_clips(rendering)
         raise
