@@ -6,10 +6,10 @@ import platform
 
 
 def package_versions() -> dict[str, str]:
-    """Versions of Python, the numerical stack, MuJoCo and cipval itself."""
+    """Versions of Python, the numerical stack, MuJoCo and cipval itself (matplotlib's
+    from its installed metadata: importing it takes longer than a short run's stages)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    import matplotlib
     import mujoco
     import numba
     import numpy as np
@@ -21,4 +21,4 @@ def package_versions() -> dict[str, str]:
         cipval = "not installed"
     return {"python": platform.python_version(), "numpy": np.__version__,
             "scipy": scipy.__version__, "numba": numba.__version__, "mujoco": mujoco.__version__,
-            "matplotlib": matplotlib.__version__, "cipval": cipval}  # fmt: skip
+            "matplotlib": version("matplotlib"), "cipval": cipval}  # fmt: skip
