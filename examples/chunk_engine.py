@@ -9,8 +9,9 @@ after each step); n = 0 ends the session.  The protocol is documented in
 cipval's README ("Engines in other programs") and in ``cip/process.py``.
 
 This engine steps the model MuJoCo ships in the header (``mjb_base64``) with
-``mj_step``; an engine in another language would build its own model from the
-header's ``parameters`` instead.  It imports nothing from cipval: only the
+``mujoco.rollout`` (``mj_step`` over each realisation's controls, in C); an
+engine in another language would build its own model from the header's
+``parameters`` instead.  It imports nothing from cipval: only the
 standard library, numpy and mujoco.
 
 ``--delay-error`` applies each control one step late (the control of step k
@@ -26,6 +27,7 @@ import tempfile
 
 import mujoco
 import numpy as np
+from mujoco import rollout
 
 I64, F64 = np.dtype("<i8"), np.dtype("<f8")
 
@@ -79,13 +81,9 @@ def main() -> int:
             previous = ctrl[:, -1].copy()
         else:
             applied = ctrl
-        out = np.empty((R, n, S))
-        for r in range(R):
-            mujoco.mj_setState(model, data, state[r], spec)
-            for k in range(n):
-                data.ctrl[:] = applied[r, k]
-                mujoco.mj_step(model, data)
-                mujoco.mj_getState(model, data, out[r, k], spec)
+        # per realisation: set the start state, then for each step the control, mj_step
+        # and the state after it
+        out, _ = rollout.rollout(model, data, state, np.ascontiguousarray(applied))
         warnings = sum(int(data.warning[w].number) for w in range(len(data.warning)))
         stdout.write(np.array([warnings], I64).tobytes() + out.astype(F64).tobytes())
         stdout.flush()
