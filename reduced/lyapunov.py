@@ -246,44 +246,39 @@ def critical_gain(
 
 
 def _solve_fits(betas: np.ndarray, lams: np.ndarray, target: float, deg: int) -> np.ndarray:
-    """:func:`_solve_fit` of every column of ``lams`` (gains, B) at once; NaN where none.
+    """Root of polyfit(betas, lams[:, j], deg) - target inside [min(betas), max(betas)] for
+    every column j of ``lams`` (gains, B), the one nearest the data's own crossing; NaN
+    where there is none.
 
     One least-squares call for every column and one batched eigenvalue call for the
-    fits' companion matrices (the same matrices :func:`numpy.roots` forms), so each
-    column's root equals :func:`_solve_fit`'s to rounding.
+    fits' companion matrices (those :func:`numpy.roots` forms); a column whose fit is
+    degenerate (leading coefficient 0, or not finite) goes through :func:`numpy.roots`.
     """
     coef = np.polyfit(betas, lams, deg)  # (deg + 1, B)
     coef[-1] -= target
-    out = np.full(lams.shape[1], np.nan)
+    real = np.full((lams.shape[1], deg), np.nan)
+    imag = np.zeros_like(real)
     ok = (coef[0] != 0) & np.isfinite(coef).all(axis=0)
-    for j in np.flatnonzero(~ok):  # a degenerate fit: the scalar path
-        b = _solve_fit(betas, lams[:, j], target, deg)
-        out[j] = np.nan if b is None else b
+    for j in np.flatnonzero(~ok & np.isfinite(coef).all(axis=0)):  # a lower degree
+        r = np.roots(coef[:, j])
+        real[j, : r.size], imag[j, : r.size] = r.real, r.imag
     c = coef[:, ok].T  # (B', deg + 1)
     comp = np.zeros((c.shape[0], deg, deg))
     comp[:, 0, :] = -c[:, 1:] / c[:, :1]
     comp[:, np.arange(1, deg), np.arange(deg - 1)] = 1.0
     roots = np.linalg.eigvals(comp)  # (B', deg)
-    real = roots.real
-    usable = (np.abs(roots.imag) < 1e-9) & (real >= betas.min()) & (real <= betas.max())
-    # the crossing nearest the data's own crossing
-    guess = betas[np.argmin(np.abs(lams[:, ok] - target), axis=0)]
+    real[ok], imag[ok] = roots.real, roots.imag
+    with np.errstate(invalid="ignore"):
+        usable = (np.abs(imag) < 1e-9) & (real >= betas.min()) & (real <= betas.max())
+    guess = betas[np.argmin(np.abs(lams - target), axis=0)]
     dist = np.where(usable, np.abs(real - guess[:, None]), np.inf)
     best = np.argmin(dist, axis=1)
-    rows = np.arange(c.shape[0])
-    out[ok] = np.where(usable.any(axis=1), real[rows, best], np.nan)
-    return out
+    found = real[np.arange(real.shape[0]), best]
+    return np.where(usable.any(axis=1), found, np.nan)
 
 
 def _solve_fit(betas: np.ndarray, lam: np.ndarray, target: float, deg: int) -> float | None:
-    """Root of polyfit(betas, lam, deg) - target inside [min(betas), max(betas)]."""
-    coef = np.polyfit(betas, lam, deg)
-    coef[-1] -= target
-    roots = np.roots(coef)
-    real = roots[np.abs(roots.imag) < 1e-9].real
-    inside = real[(real >= betas.min()) & (real <= betas.max())]
-    if inside.size == 0:
-        return None
-    # the crossing nearest the data's own crossing
-    guess = betas[np.argmin(np.abs(lam - target))]
-    return float(inside[np.argmin(np.abs(inside - guess))])
+    """:func:`_solve_fits` of one set of lambda1 values; None where the fit has no root
+    inside the gains."""
+    b = _solve_fits(betas, np.asarray(lam, dtype=float)[:, None], target, deg)[0]
+    return None if np.isnan(b) else float(b)
