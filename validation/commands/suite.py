@@ -262,9 +262,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--workers",
+        "--threads",
+        dest="workers",
         type=positive_int,
         default=None,
-        help="threads / processes (count >= 1; default: all cores)",
+        help="threads / processes (count >= 1; default: all cores; --threads as in "
+        "`engines` and `simulate`); results do not depend on it",
     )
     p.add_argument(
         "--resume",
@@ -302,9 +305,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--workers",
+        "--threads",
+        dest="workers",
         type=positive_int,
         default=None,
-        help="threads / processes (count >= 1; default: all cores)",
+        help="threads / processes (count >= 1; default: all cores; --threads as in "
+        "`engines` and `simulate`); results do not depend on it",
     )
     add_engine_options(p)
     p.set_defaults(func=cmd_baseline)
