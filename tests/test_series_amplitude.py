@@ -13,20 +13,15 @@ Warp there takes minutes, the float64 side about a minute.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 from helpers import engine_or_skip
 
 from validation.agreement import (
-    FLOAT32_ROD_SLOPE_FLOOR,
-    TWIN_METRIC_FLOOR,
     compare_series,
     run_pair,
     run_twin,
     series_metrics,
     trajectory_distance,
-    twin_slope_floor,
 )
 from validation.profiles import PAPER_BETA, PROFILES
 
@@ -84,33 +79,3 @@ def test_float32_engine_resolves_the_series_at_its_amplitude_only() -> None:
 
     assert distance(profile.amplitude) > 0.01
     assert distance(amplitude) < 0.01
-
-
-def test_twin_slope_floor_follows_precision_and_rod() -> None:
-    """float64 engines and a float32 single model keep TWIN_METRIC_FLOOR; a float32 model
-    with a rod adds FLOAT32_ROD_SLOPE_FLOOR / amplitude: above the measured float32 slope
-    differences at smoke's amplitude (6.6e-5 at 1e-4 m), below 1e-5 m none holds."""
-    assert twin_slope_floor("coupled", "float64", 1e-8) == TWIN_METRIC_FLOOR
-    assert twin_slope_floor("single", "float32", 1e-5) == TWIN_METRIC_FLOOR
-    smoke = PROFILES["smoke"].amplitude_float32
-    floor = twin_slope_floor("coupled", "float32", smoke)
-    assert floor == TWIN_METRIC_FLOOR + FLOAT32_ROD_SLOPE_FLOOR / smoke
-    assert 6.6e-5 < floor < 1e-3
-
-
-def test_twin_metrics_hold_the_slopes_to_the_given_floor() -> None:
-    """The twin check fails a slope shift beyond ``slope_floor`` and passes it within."""
-    profile = PROFILES["smoke"]
-    args = ("coupled", PAPER_BETA["coupled"], 1e-6, 10.0, 2, 3, profile.decimate, 1)
-    full, red = run_pair(*args)
-    mf, mr = (series_metrics(x, profile, 0.1, profile.spectrum_segment) for x in (full, red))
-    shift = 3e-5
-    mt = replace(mf, slopes=replace(mf.slopes, slope_high=mf.slopes.slope_high + shift))
-
-    def status(floor: float) -> str:
-        checks = compare_series("coupled", mf, mr, "", "", mt, None, floor)
-        (check,) = [c for c in checks if c.name.startswith("twin")]
-        return check.status
-
-    assert status(TWIN_METRIC_FLOOR) == "fail"
-    assert status(2 * shift) == "pass"

@@ -184,27 +184,6 @@ def run_pair(
 #: profile's series (1e-8 m, 8 x 100 s); 1e-6 leaves a factor 45.
 TWIN_METRIC_FLOOR = 1e-6
 
-#: float32's floor of the coupled twin's spectral slopes, as |full - twin| times the series'
-#: amplitude (m): the rod's round-off (its length resolved to about l * 6e-8 m) whitens the
-#: spectrum by an error that falls as 1/amplitude.  MuJoCo Warp on warp's CPU device,
-#: smoke's series (3 x 45 s, its seed), less float64 MuJoCo's own nonlinear shift: |slope
-#: difference| 8.7e-4 / 6.7e-5 / 3.4e-6 at 1e-5 / 1e-4 / 1e-3 m, i.e. 8.7e-9 / 6.7e-9 /
-#: 3.4e-9 m times 1/amplitude; the floor below is twice the largest.  Below 1e-5 m the rod
-#: is noise (0.14 at 1e-6 m) and no floor holds; the single model has no rod (its float32
-#: slopes 2e-7 to 3.4e-7 off at 1e-5 m, inside TWIN_METRIC_FLOOR).
-FLOAT32_ROD_SLOPE_FLOOR = 1.7e-8
-
-
-def twin_slope_floor(model: str, precision: str, amplitude: float) -> float:
-    """The largest |full - twin| of the spectral slopes (no interval: one fit to the mean
-    spectrum) for an engine whose state has ``precision`` at the series' ``amplitude`` (m):
-    :data:`TWIN_METRIC_FLOOR`, plus :data:`FLOAT32_ROD_SLOPE_FLOOR` / amplitude for a
-    float32 engine's model with a rod."""
-    if precision == "float32" and get_model(model).n_controllers > 1:
-        return TWIN_METRIC_FLOOR + FLOAT32_ROD_SLOPE_FLOOR / amplitude
-    return TWIN_METRIC_FLOOR
-
-
 PAIRED_RULE = (
     "paired TOST: 95% CI of the per-realisation full - reduced difference within +- margin, "
     "margin = |twin - reduced| (the known terms, paired mean + 95% half-width) + the paired "
@@ -245,7 +224,6 @@ def compare_series(
     details: str,
     mt: SeriesMetrics | None = None,
     me: SeriesMetrics | None = None,
-    slope_floor: float = TWIN_METRIC_FLOOR,
 ) -> list[Check]:
     """Verdicts for RMS, spectrum (bands and slopes), STCC peaks and velocity spread.
 
@@ -253,8 +231,7 @@ def compare_series(
     full-vs-reduced margins (the known terms' difference) and each metric is
     also checked against the twin (:func:`validation.stats.paired_shift`).
     ``me`` are the envelope twin's (:func:`validation.conformance.envelope_twin_terms`):
-    the known terms enter a margin only up to theirs.  ``slope_floor``: the twin's
-    spectral slopes' tolerance (:func:`twin_slope_floor`).
+    the known terms enter a margin only up to theirs.
     """
     from .conformance import BOUNDED_RULE, bounded_margin
 
@@ -370,7 +347,7 @@ def compare_series(
     if mt is not None:
         for which in ("slope_low", "slope_high"):
             diff = getattr(mf.slopes, which) - getattr(mt.slopes, which)
-            ok = abs(diff) <= slope_floor
+            ok = abs(diff) <= TWIN_METRIC_FLOOR
             shifts[which] = {"status": PASS if ok else FAIL, "difference": diff}
         checks.append(
             Check(
@@ -379,13 +356,7 @@ def compare_series(
                 values=shifts,
                 tolerance="every metric of the full model equals the exact twin's under the same "
                 f"noise: paired mean difference within its 95% CI + {TWIN_METRIC_FLOOR:g} "
-                "(agreement.TWIN_METRIC_FLOOR)"
-                + (
-                    ""
-                    if slope_floor == TWIN_METRIC_FLOOR
-                    else f"; the spectral slopes (one fit, no interval) within {slope_floor:.3g} "
-                    "(agreement.FLOAT32_ROD_SLOPE_FLOOR / amplitude + that floor)"
-                ),
+                "(agreement.TWIN_METRIC_FLOOR)",
                 details=details,
             )
         )
@@ -474,8 +445,7 @@ def series_checks(
             f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
             f"largest |theta| {max_angle:.2g} rad"
         )
-        slope_floor = twin_slope_floor(model, precision, amplitude)
-        checks += compare_series(model, mf, mr, "", details, mt, me, slope_floor)
+        checks += compare_series(model, mf, mr, "", details, mt, me)
         rel = trajectory_distance(full, red)
         checks.append(
             Check(
