@@ -50,6 +50,8 @@ def lyapunov_checks(
     from cip.mjcf_params import read_mapping
 
     checks, rows = [], []
+    precision = rigid_engine(engine).capabilities.precision
+    epsilon = profile.lyapunov_epsilon(precision)
     for model, gains in profile.lyapunov_gains.items():
         m = model_file(model, files, integrator)
         phys = read_mapping(m).physical()
@@ -63,7 +65,9 @@ def lyapunov_checks(
                 "threads": threads,
             }
             red = lyapunov(model, p, **kw)
-            full = rigid_engine(engine).lyapunov(model, p, physical=phys, mj_model=m, **kw)
+            full = rigid_engine(engine).lyapunov(
+                model, p, physical=phys, mj_model=m, epsilon=epsilon, **kw
+            )
             status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
             rows.append(
                 {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
@@ -80,7 +84,8 @@ def lyapunov_checks(
                     tolerance="95% CIs overlap: pass if |difference| <= larger half-width, "
                     "fail if the intervals are disjoint",
                     details=f"{profile.lyapunov_realizations} realisations x "
-                    f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both engines",
+                    f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both engines, "
+                    f"Benettin deviation {epsilon:g} m{lyapunov_epsilon_note(profile, precision)}",
                 )
             )
     return checks, {"lyapunov": rows}
@@ -375,6 +380,28 @@ def series_amplitude_note(profile: Profile, precision: str) -> str:
         return ""
     rule = FLOAT32_AMPLITUDE_RULE
     return f" ({precision}'s series amplitude; {profile.amplitude:g} m in float64: {rule})"
+
+
+#: Why a float32 engine's lambda1 runs at Profile.benettin_epsilon_float32 (the checks say it).
+FLOAT32_EPSILON_RULE = (
+    "float32 resolves the coupled rod's length (a tendon between tips about 1 m apart) to "
+    "about ulp(1 m) = 1.2e-7 m, as large as float64's deviation 1e-7 m: MuJoCo Warp's "
+    "lambda1 (coupled, beta 20.5, 3 x 20 s) is -0.45 1/s at 1e-7 m, 0.096 at 1e-6, 0.044 "
+    "at 1e-5, 3.3e-3 at 1e-4 and 9.7e-4 at 5e-4 m against float64 MuJoCo's 9.0e-4 (the same "
+    "to 3e-9 1/s from 1e-7 to 5e-4 m: linear); at 5e-4 m the angles stay below "
+    "epsilon / L = 1.1e-3 rad, sin theta = theta to theta^2 / 6 = 2e-7"
+)
+
+
+def lyapunov_epsilon_note(profile: Profile, precision: str) -> str:
+    """Why lambda1 runs at its Benettin deviation, where the engine's precision sets it
+    (:meth:`validation.profiles.Profile.lyapunov_epsilon`); '' at the float64 one."""
+    if profile.lyapunov_epsilon(precision) == profile.benettin_epsilon:
+        return ""
+    return (
+        f" ({precision}'s deviation; {profile.benettin_epsilon:g} m in float64: "
+        f"{FLOAT32_EPSILON_RULE})"
+    )
 
 
 def series_checks(

@@ -31,6 +31,11 @@ class Profile:
     )
     lyapunov_duration: float = 200.0
     lyapunov_realizations: int = 8
+    # m: the Benettin deviation's size (cip.lyapunov.lyapunov_full) for a float64 engine
+    # and for one whose state is float32 (Capabilities.precision, Profile.lyapunov_epsilon):
+    # agreement.FLOAT32_EPSILON_RULE
+    benettin_epsilon: float = 1e-7
+    benettin_epsilon_float32: float = 5e-4
     lyapunov_curve_gains: tuple = tuple(np.round(np.linspace(19.0, 24.0, 11), 3))
     # time series of both engines at the paper gains (agreement)
     # m: initial balancing error; near threshold the single balancer grows ~1e4-fold in
@@ -111,6 +116,14 @@ class Profile:
         if precision not in amplitudes:
             raise ValueError(f"precision must be one of {sorted(amplitudes)}, got {precision!r}")
         return amplitudes[precision]
+
+    def lyapunov_epsilon(self, precision: str) -> float:
+        """The Benettin deviation's size (m) of lambda1 for an engine whose state has
+        ``precision`` (``Capabilities.precision``: "float64" or "float32")."""
+        epsilons = {"float64": self.benettin_epsilon, "float32": self.benettin_epsilon_float32}
+        if precision not in epsilons:
+            raise ValueError(f"precision must be one of {sorted(epsilons)}, got {precision!r}")
+        return epsilons[precision]
 
     def seed_for(self, *labels: object) -> int:
         """A seed derived from the profile's seed and a label (stable across runs)."""
