@@ -112,18 +112,16 @@ class Profile:
     def series_amplitude(self, precision: str) -> float:
         """The time series' initial balancing error (m) for an engine whose state has
         ``precision`` (``Capabilities.precision``: "float64" or "float32")."""
-        amplitudes = {"float64": self.amplitude, "float32": self.amplitude_float32}
-        if precision not in amplitudes:
-            raise ValueError(f"precision must be one of {sorted(amplitudes)}, got {precision!r}")
-        return amplitudes[precision]
+        return _by_precision({"float64": self.amplitude, "float32": self.amplitude_float32},
+                             precision)  # fmt: skip
 
     def lyapunov_epsilon(self, precision: str) -> float:
         """The Benettin deviation's size (m) of lambda1 for an engine whose state has
         ``precision`` (``Capabilities.precision``: "float64" or "float32")."""
-        epsilons = {"float64": self.benettin_epsilon, "float32": self.benettin_epsilon_float32}
-        if precision not in epsilons:
-            raise ValueError(f"precision must be one of {sorted(epsilons)}, got {precision!r}")
-        return epsilons[precision]
+        return _by_precision(
+            {"float64": self.benettin_epsilon, "float32": self.benettin_epsilon_float32},
+            precision,
+        )
 
     def seed_for(self, *labels: object) -> int:
         """A seed derived from the profile's seed and a label (stable across runs)."""
@@ -218,3 +216,10 @@ PROFILES["robustness"] = replace(
         "threshold_reference": ("rms", "median"),
     },
 )
+
+
+def _by_precision(values: dict[str, float], precision: str) -> float:
+    """``values[precision]``; a ValueError naming the precisions allowed otherwise."""
+    if precision not in values:
+        raise ValueError(f"precision must be one of {sorted(values)}, got {precision!r}")
+    return values[precision]
