@@ -63,13 +63,15 @@ def _serve(conn: Connection, backend: type, model: Any, n_realizations: int) -> 
     """A worker: step its block for every (state, ctrl) received, until None.  An
     exception is sent back and raised in the parent."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and ends us
+    # read before "ready" is sent: the parent may be killed as soon as it has that
+    # answer, and a pid read later would already be the reaper's
+    parent = os.getppid()
     try:
         block = backend(model, n_realizations, 1)
     except Exception as exc:
         conn.send(exc)
         return
     conn.send("ready")
-    parent = os.getppid()
     while True:
         try:
             if not conn.poll(ORPHAN_POLL_S):

@@ -151,17 +151,30 @@ def test_the_worker_engines_are_every_installed_engine_that_declares_workers():
     assert declared == {n for n in WORKER_ENGINES if availability(n) is None}
 
 
-def test_workers_end_when_their_parent_is_killed(tmp_path):
-    """SIGKILL of the run (no clean-up in it) leaves no orphaned worker behind."""
+@pytest.mark.parametrize("slow_worker", [False, True], ids=["prompt", "slow-after-ready"])
+def test_workers_end_when_their_parent_is_killed(tmp_path, slow_worker):
+    """SIGKILL of the run (no clean-up in it) leaves no orphaned worker behind, also
+    when the parent dies while a worker is still between "ready" and its first wait
+    (the worker must know its parent before it answers)."""
     import os
     import signal
     import subprocess
     import sys
     import time
 
+    slow = (
+        "import multiprocessing.connection as mc\n"
+        "_send = mc.Connection.send\n"
+        "def send(self, obj):\n"
+        "    _send(self, obj)\n"
+        "    if isinstance(obj, str) and obj == 'ready':\n"
+        "        time.sleep(2)\n"
+        "mc.Connection.send = send\n"
+    )
     code = (
         "import sys, time\n"
-        "from cip.model import CIPParams, build\n"
+        + (slow if slow_worker else "")
+        + "from cip.model import CIPParams, build\n"
         "from cip.workers import ProcessBlocks\n"
         "from test_process_workers import _Failing\n"
         "r = ProcessBlocks(_Failing, build('single', CIPParams()), 4, 2)\n"
@@ -181,6 +194,8 @@ def test_workers_end_when_their_parent_is_killed(tmp_path):
     while alive and time.monotonic() < deadline:
         time.sleep(0.1)
         alive = [p for p in pids if _running(p)]
+    for pid in alive:  # leave no orphan behind on failure either
+        os.kill(pid, signal.SIGKILL)
     assert not alive, f"workers {alive} outlived their killed parent"
 
 
