@@ -497,23 +497,34 @@ def stcc_significance(window_samples: int, z: float = 3.0) -> float:
     return z / np.sqrt(window_samples)
 
 
+#: windows per FFT call of :func:`_window_acf`: the transforms' working set then stays in
+#: the CPU's cache (measured: 1.6x faster than one call over all 2400 windows of a 600 s
+#: series, at window lengths of 1000 and 2000 samples)
+_ACF_ROWS = 64
+
+
 def _window_acf(z: np.ndarray, w: int, max_lag: int | None = None) -> np.ndarray:
     """Sample autocorrelations r(j), j = 0..max_lag (default w - 1), of each row of ``z``
     (rows, w).
 
     The standard (biased) estimator: r(j) = sum_{s<w-j} z'_s z'_{s+j} / sum z'^2,
     z' the row minus its mean; via an FFT zero-padded to at least w + max_lag points
-    (the circular correlation then equals the linear one at every lag returned).
+    (the circular correlation then equals the linear one at every lag returned), in
+    blocks of :data:`_ACF_ROWS` rows.
     """
-    from scipy.fft import next_fast_len
+    from scipy import fft
 
     m = w - 1 if max_lag is None else min(int(max_lag), w - 1)
-    z = z - z.mean(axis=-1, keepdims=True)
-    nfft = next_fast_len(w + m, real=True)
-    f = np.fft.rfft(z, nfft, axis=-1)
-    ac = np.fft.irfft(f * np.conj(f), nfft, axis=-1)[..., : m + 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return ac / ac[..., :1]
+    nfft = fft.next_fast_len(w + m, real=True)
+    out = np.empty((z.shape[0], m + 1))
+    for a in range(0, z.shape[0], _ACF_ROWS):
+        block = z[a : a + _ACF_ROWS]
+        f = fft.rfft(block - block.mean(axis=-1, keepdims=True), nfft, axis=-1)
+        f *= np.conj(f)
+        ac = fft.irfft(f, nfft, axis=-1)[..., : m + 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[a : a + _ACF_ROWS] = ac / ac[..., :1]
+    return out
 
 
 def effective_samples(
