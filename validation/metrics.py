@@ -301,8 +301,10 @@ def density_ratio_near_zero(
 
 
 # ----------------------------------------------------------------- STCC
-#: Largest number of block values gathered at once when combining windows.
-_CHUNK_ELEMENTS = 4_000_000
+#: Largest number of block values gathered at once when combining windows: bounds the
+#: memory and keeps the gathered blocks in cache (measured: the STCC of 16 x 600 s with
+#: 10 s windows in 0.53 s instead of 0.90 s with 4e6; the same bits)
+_CHUNK_ELEMENTS = 250_000
 
 
 def _block_stats(z: np.ndarray, nblocks: int, g: int) -> tuple[np.ndarray, np.ndarray]:
