@@ -213,3 +213,17 @@ def test_paper_labels_become_printed_numbers():
     )
     assert printed("eq. (cabrera); eq. sss08:TM") == "eq. (1); eq. (5)"
     assert printed("Fig. rmstau, fig_rms.png, Fig. 3") == "Fig. 16, fig_rms.png, Fig. 3"
+
+
+def test_figures_keep_the_report_order_though_drawn_as_their_stages_finish(smoke_run):
+    """The figure process draws each paper figure as soon as its stages are done (so in
+    another order); the report lists them in the paper's order, rod-length figures
+    after, and no job file is left behind."""
+    from validation.figure_worker import PAPER_FIGURES, ROD_METRICS
+
+    out, results = smoke_run
+    names = [Path(f).name for f in results["figures"]]
+    assert names[: len(PAPER_FIGURES)] == list(PAPER_FIGURES)
+    rod = [f"fig_rod_length_{m}.png" for m in ROD_METRICS]
+    assert names[len(PAPER_FIGURES) : len(PAPER_FIGURES) + len(rod)] == rod
+    assert not list((out / "stages").glob("figures-*job.pkl"))

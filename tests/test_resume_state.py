@@ -39,7 +39,7 @@ def counted(monkeypatch):
     monkeypatch.setattr(harness.paper, "nonlinear_comparison", stand_in("nonlinear stick"))
     monkeypatch.setattr(harness.agreement, "rod_length_study", stand_in("rod-length study"))
     monkeypatch.setattr(harness, "_figures", stand_in("figures"))
-    monkeypatch.setattr(harness, "start_paper_figures", lambda *a, **k: None)  # drawn in-process
+    monkeypatch.setattr(harness, "spawn_figure_worker", lambda *a, **k: None)  # drawn in-process
     monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
     return calls
 
@@ -154,3 +154,25 @@ def test_figure_child_process_draws_the_rod_length_figures_after_the_paper_job(t
     assert all(f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for f in files)
     harness.stop_paper_figures(worker)
     assert not list((tmp_path / harness.STAGE_DIR).glob("figures-*job.pkl"))
+
+
+def test_each_paper_figure_is_ready_once_the_stages_it_draws_are_done():
+    from validation.figure_worker import PAPER_FIGURES
+
+    assert set(harness.FIGURE_DATA_STAGES.values()) <= set(harness.STAGES)
+    assert {k for keys in PAPER_FIGURES.values() for k in keys} == set(harness.FIGURE_DATA_STAGES)
+    assert harness.ready_paper_figures(["conformance and anchors"]) == []
+    done = ["conformance and anchors", "lambda1 agreement", "time-series agreement"]
+    assert harness.ready_paper_figures(done) == ["fig_Be.png"]
+    done += ["amplitude scan", "critical gains", "lambda1 curve"]
+    ready = harness.ready_paper_figures(done, ["fig_Be.png"])
+    assert ready == ["fig_lLe.png", "fig_amplitude_scan.png"]
+    assert harness.ready_paper_figures(harness.STAGES) == list(PAPER_FIGURES)
+
+
+def test_an_unknown_paper_figure_name_is_refused(tmp_path):
+    pytest.importorskip("matplotlib")
+    from validation import plots
+
+    with pytest.raises(ValueError, match="no paper figure named"):
+        plots.paper_figures(tmp_path, only=["fig_nonesuch.png"])

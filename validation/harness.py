@@ -44,6 +44,7 @@ import os
 import pickle
 import platform
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -67,13 +68,16 @@ from .versions import package_versions
 __all__ = ["STAGES", "RunInterrupted", "StageCrashed", "compile_note", "package_versions",
            "run_validation"]  # fmt: skip
 
-#: the stages in the order they run: the paper figures' stages first, then the rod-length
-#: study, so that the figure process draws both while robustness and the nonlinear stick
-#: compute
-STAGES = ("conformance and anchors", "lambda1 agreement", "time-series agreement",
-          "amplitude scan", "critical gains",
-          "lambda1 curve", "RMS and velocity", "STCC and spectra", "rod-length study",
-          "robustness", "nonlinear stick", "figures")  # fmt: skip
+#: the stages in the order they run (each is independent of the others' order: own seeds,
+#: and the paper stages share simulations through a cache, the same numbers whichever
+#: computes them first).  The figure process draws each figure once its stages are done,
+#: so the stages with the most figures to draw come first and those with none last: the
+#: rod-length study (two), the time series and the STCC (four), ..., the lambda1 stages
+#: (one), then robustness and the nonlinear stick, which the drawing overlaps
+STAGES = ("conformance and anchors", "rod-length study", "time-series agreement",
+          "STCC and spectra", "RMS and velocity", "amplitude scan", "lambda1 agreement",
+          "critical gains", "lambda1 curve", "robustness", "nonlinear stick",
+          "figures")  # fmt: skip
 STAGE_DIR = "stages"
 
 
@@ -299,6 +303,7 @@ def run_validation(
     # stages it draws are done
     worker = spawn_figure_worker(out_dir) if figures and not resume else None
     drawing = None
+    sent: list[str] = []  # the paper figures given to the figure process
 
     def compute(name: str) -> Any:
         if name == "conformance and anchors":
@@ -350,9 +355,13 @@ def run_validation(
                 store.save(name, {"value": state[name], "seconds": timings[name],
                                   "inputs": inputs})  # fmt: skip
             done.append(name)
-            if worker and drawing is None and set(PAPER_FIGURE_STAGES) <= set(done):
-                drawing = start_paper_figures(out_dir, state, worker)
-            if drawing and name == "rod-length study":
+            # each paper figure drawn as soon as the stages it draws have finished
+            ready = ready_paper_figures(done, sent) if worker else []
+            if ready:
+                drawing = start_paper_figures(out_dir, state, worker, ready) or drawing
+                sent.extend(ready)
+            if worker and name == "rod-length study":
+                drawing = worker
                 _send_figure_job(drawing, out_dir, "rod", {"rod_ds": state[name][2]})
             bar.update(1)
             partial = _results(profile, state, timings, workers, t0, model_files)
@@ -429,22 +438,36 @@ def _engine_record(
             "rod_tolerance": eng.rod_tolerance}  # fmt: skip
 
 
-#: the stages :func:`validation.plots.paper_figures` draws (the later ones are not needed)
-PAPER_FIGURE_STAGES = ("lambda1 agreement", "time-series agreement", "amplitude scan",
-                       "critical gains", "lambda1 curve", "RMS and velocity",
-                       "STCC and spectra")  # fmt: skip
+#: the stage that computes each datum of the paper figures (keyword arguments of
+#: :func:`validation.plots.paper_figures`; which figure draws which:
+#: :data:`validation.figure_worker.PAPER_FIGURES`)
+FIGURE_DATA_STAGES = {"lyapunov_points": "lambda1 agreement", "series": "time-series agreement",
+                      "scan": "amplitude scan", "bstar": "critical gains",
+                      "curve": "lambda1 curve", "rms": "RMS and velocity",
+                      "peaks": "STCC and spectra"}  # fmt: skip
 
 
-def _paper_figure_data(state: dict[str, Any]) -> dict[str, Any]:
-    """The keyword arguments of :func:`validation.plots.paper_figures` from the stages."""
-    _, d = state["lambda1 agreement"]
-    _, series = state["time-series agreement"]
-    _, scan_rows = state["amplitude scan"]
-    _, _, bstar = state["critical gains"]
-    _, rms_data = state["RMS and velocity"]
-    _, peak_data = state["STCC and spectra"]
-    return {"curve": state["lambda1 curve"], "lyapunov_points": d["lyapunov"], "bstar": bstar,
-            "series": series, "rms": rms_data, "peaks": peak_data, "scan": scan_rows}  # fmt: skip
+def _paper_figure_data(state: dict[str, Any], keys: Any = None) -> dict[str, Any]:
+    """The keyword arguments ``keys`` (default all) of
+    :func:`validation.plots.paper_figures` from the stages."""
+    keys = FIGURE_DATA_STAGES if keys is None else keys
+    get = {"lyapunov_points": lambda: state["lambda1 agreement"][1]["lyapunov"],
+           "series": lambda: state["time-series agreement"][1],
+           "scan": lambda: state["amplitude scan"][1],
+           "bstar": lambda: state["critical gains"][2],
+           "curve": lambda: state["lambda1 curve"],
+           "rms": lambda: state["RMS and velocity"][1],
+           "peaks": lambda: state["STCC and spectra"][1]}  # fmt: skip
+    return {k: get[k]() for k in keys}
+
+
+def ready_paper_figures(done: Any, sent: Any = ()) -> list[str]:
+    """The paper figures (file names, report order) not in ``sent`` whose data the
+    stages ``done`` have all computed."""
+    from .figure_worker import PAPER_FIGURES
+
+    return [name for name, keys in PAPER_FIGURES.items() if name not in sent
+            and all(FIGURE_DATA_STAGES[k] in done for k in keys)]  # fmt: skip
 
 
 def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any, Any]:
@@ -460,28 +483,38 @@ def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any, Any]:
 
 
 def start_paper_figures(
-    out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any, Any] | None = None
-) -> tuple[Any, Path, Any, Any]:
-    """Draw the paper figures in the child process ``worker`` (:func:`spawn_figure_worker`,
-    started here if None) while the later stages run; returns it.  Its stdin stays open
-    for the rod-length study's figures (:func:`finish_paper_figures`)."""
+    out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any, Any] | None = None,
+    names: list[str] | None = None,
+) -> tuple[Any, Path, Any, Any]:  # fmt: skip
+    """Draw the paper figures ``names`` (default every one) in the child process
+    ``worker`` (:func:`spawn_figure_worker`, started here if None) while the later
+    stages run; returns it.  Its stdin stays open for further figures and the
+    rod-length study's (:func:`finish_paper_figures`)."""
+    from .figure_worker import PAPER_FIGURES
+
     drawing = worker or spawn_figure_worker(out_dir)
-    _send_figure_job(drawing, out_dir, "paper", _paper_figure_data(state))
+    names = list(PAPER_FIGURES) if names is None else list(names)
+    keys = sorted({k for name in names for k in PAPER_FIGURES[name]})
+    _send_figure_job(drawing, out_dir, "paper", {"only": names, **_paper_figure_data(state, keys)})
     return drawing
 
 
-def _figure_job_files(job: Path) -> tuple[Path, Path]:
-    """The figure worker's job files: the paper figures' and the rod-length study's."""
-    return job, job.with_name("figures-rod-job.pkl")
+def _figure_job_files(job: Path) -> list[Path]:
+    """The figure worker's job files not yet read (it removes each once read)."""
+    return sorted(job.parent.glob("figures-*job.pkl"))
 
 
 def _send_figure_job(
     drawing: tuple[Any, Path, Any, Any], out_dir: Path, kind: str, kwargs: dict
 ) -> None:
-    """One job for the figure worker (:mod:`validation.figure_worker`): its pickle, then
-    its path on the worker's stdin."""
+    """One job for the figure worker (:mod:`validation.figure_worker`): its pickle, in a
+    file of its own (the worker may still be reading the previous one), then its path on
+    the worker's stdin."""
     proc, job, _, _ = drawing
-    path = _figure_job_files(job)[kind == "rod"]
+    job.parent.mkdir(parents=True, exist_ok=True)
+    fd, name = tempfile.mkstemp(prefix=f"figures-{kind}-", suffix="-job.pkl", dir=job.parent)
+    os.close(fd)
+    path = Path(name)
     _atomic(path, pickle.dumps({"out_dir": str(out_dir), "kind": kind, "kwargs": kwargs},
                                protocol=pickle.HIGHEST_PROTOCOL))  # fmt: skip
     try:
@@ -530,8 +563,12 @@ def finish_paper_figures(
         err.seek(0)
         why = (err.read().strip().splitlines() or ["no output"])[-1]
         raise RuntimeError(f"drawing the figures failed: {why}")
+    from .figure_worker import PAPER_FIGURES
+
     out.seek(0)
-    return [Path(line) for line in out.read().splitlines() if line.strip()]
+    files = [Path(line) for line in out.read().splitlines() if line.strip()]
+    order = {name: k for k, name in enumerate(PAPER_FIGURES)}  # the report's order
+    return sorted(files, key=lambda f: order.get(f.name, len(order)))
 
 
 def _figures(

@@ -264,22 +264,31 @@ def fig_scan(scan, path: Path) -> Path:
     return _save(fig, path)
 
 
-def paper_figures(out_dir: Path, *, curve, lyapunov_points, bstar, series, rms, peaks, scan):
-    """Write every figure of the report; returns their paths."""
+def paper_figures(
+    out_dir: Path, *, only=None, curve=None, lyapunov_points=None, bstar=None, series=None,
+    rms=None, peaks=None, scan=None,
+) -> list[Path]:  # fmt: skip
+    """Write the figures of the report named in ``only`` (file names; default every one),
+    in the report's order (:data:`validation.figure_worker.PAPER_FIGURES`, which also
+    names the data each needs); returns their paths."""
     from cipcore.params import BalanceParams
 
     from .divergence import pendulum_length
     from .profiles import PAPER_BETA
 
     length = pendulum_length(BalanceParams(beta=PAPER_BETA["single"]))  # L = g / alpha
-    return [
-        fig_lle(curve, lyapunov_points, bstar, out_dir / "fig_lLe.png"),
-        fig_be(series, out_dir / "fig_Be.png"),
-        fig_pwsp(series, peaks, out_dir / "fig_pwsp.png"),
-        fig_rms(rms, out_dir / "fig_rms.png", length),
-        fig_velo(rms, out_dir / "fig_velo.png"),
-        fig_scc(peaks, series, out_dir / "fig_scc.png"),
-        fig_sccpeak(peaks, out_dir / "fig_sccpeak.png"),
-        fig_sccpeak_pdf(peaks, series, out_dir / "fig_sccpeak_pdf.png"),
-        fig_scan(scan, out_dir / "fig_amplitude_scan.png"),
-    ]
+    draw = {
+        "fig_lLe.png": lambda p: fig_lle(curve, lyapunov_points, bstar, p),
+        "fig_Be.png": lambda p: fig_be(series, p),
+        "fig_pwsp.png": lambda p: fig_pwsp(series, peaks, p),
+        "fig_rms.png": lambda p: fig_rms(rms, p, length),
+        "fig_velo.png": lambda p: fig_velo(rms, p),
+        "fig_scc.png": lambda p: fig_scc(peaks, series, p),
+        "fig_sccpeak.png": lambda p: fig_sccpeak(peaks, p),
+        "fig_sccpeak_pdf.png": lambda p: fig_sccpeak_pdf(peaks, series, p),
+        "fig_amplitude_scan.png": lambda p: fig_scan(scan, p),
+    }
+    unknown = set(only or ()) - set(draw)
+    if unknown:
+        raise ValueError(f"no paper figure named {sorted(unknown)}; figures: {list(draw)}")
+    return [draw[name](out_dir / name) for name in draw if only is None or name in only]
