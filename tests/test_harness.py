@@ -148,13 +148,14 @@ def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tm
     from validation.harness import STAGES
 
     out = tmp_path / "interrupted"
-    code, err, kept = _interrupt_after(_start_run(out), out, 2, signal.SIGTERM)
+    # without the figures' process (the slow version keeps it): the stages alone
+    code, err, kept = _interrupt_after(_start_run(out, "--no-figures"), out, 2, signal.SIGTERM)
     assert code == 143, err
     last = err.strip().splitlines()[-1]
     assert last.startswith("cip-validate: interrupted by SIGTERM: kept ") and "--resume" in last
     assert len(kept) >= 2 and kept == list(STAGES[: len(kept)])
     code, err, kept2 = _interrupt_after(
-        _start_run(out, "--resume"), out, len(kept) + 1, signal.SIGTERM
+        _start_run(out, "--no-figures", "--resume"), out, len(kept) + 1, signal.SIGTERM
     )
     assert code == 143, err
     assert len(kept2) > len(kept) and kept2[: len(kept)] == kept

@@ -168,7 +168,7 @@ def test_workers_end_when_their_parent_is_killed(tmp_path, slow_worker):
         "def send(self, obj):\n"
         "    _send(self, obj)\n"
         "    if isinstance(obj, str) and obj == 'ready':\n"
-        "        time.sleep(2)\n"
+        "        time.sleep(1)\n"
         "mc.Connection.send = send\n"
     )
     code = (
