@@ -169,7 +169,17 @@ def fig_stcc(picks, mode: str, path: Path) -> Path:
         if np.isfinite(th):
             ax.axvline(th, ls=":", color=ax.lines[-1].get_color())
     ax.set(xlabel="tau (s)", ylabel="R", title=f"STCC, {mode}")
-    ax.legend()
+    if ax.lines:
+        ax.legend()
+    else:
+        ax.text(
+            0.5,
+            0.5,
+            "no trial long enough: STCC windows need trials of at least 5.5 s",
+            transform=ax.transAxes,
+            ha="center",
+            va="center",
+        )
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
