@@ -147,6 +147,7 @@ def test_baseline_mode_follows_what_changes_numbers_not_the_kernel_string():
     from validation.baseline import BaselineMismatch, choose_mode
 
     fp = {"machine": "x86_64", "cpu_flags": ["avx2", "fma"], "numpy_build": {"blas": "b"},
+          "blas_kernels": ["openblas 0.3.31 SkylakeX"],
           "model_digests": {"single": "1", "coupled": "2"}}  # fmt: skip
     a = {"versions": {"mujoco": "4.0.0"}, "platform": "Linux-6.1-x86_64", "fingerprint": fp}
     other_kernel = {**a, "platform": "Linux-6.18.44-fc-v782-x86_64"}
@@ -154,6 +155,13 @@ def test_baseline_mode_follows_what_changes_numbers_not_the_kernel_string():
     no_fma = {**a, "fingerprint": {**fp, "cpu_flags": ["avx2"]}}
     mode, why = choose_mode(a, no_fma)
     assert mode == "roundoff" and "+fma" in why
+    # the same flags, OpenBLAS on other kernels (it chooses them by CPU family and model)
+    other_blas = {**a, "fingerprint": {**fp, "blas_kernels": ["openblas 0.3.31 Haswell"]}}
+    mode, why = choose_mode(a, other_blas)
+    assert mode == "roundoff" and "blas_kernels" in why and "Haswell" in why
+    unrecorded = {k: v for k, v in fp.items() if k != "blas_kernels"}
+    mode, why = choose_mode(a, {**a, "fingerprint": unrecorded})
+    assert mode == "roundoff" and "does not record its blas kernels" in why
     old = {"versions": {"mujoco": "4.0.0"}, "platform": "y"}  # no fingerprint recorded
     assert choose_mode(a, old)[0] == "roundoff"
     b = {"versions": {"mujoco": "3.5.0"}, "platform": "x", "fingerprint": fp}
@@ -179,6 +187,36 @@ def test_roundoff_mode_compares_every_number_to_its_stated_tolerance():
     bad = [c.name for c in compare_with_baseline(far, base, "roundoff") if c.status == "fail"]
     assert bad == ["regression.c.measured_steps", "regression.c.x"]
     assert [c.status for c in compare_with_baseline(near, base, "exact")].count("fail") == 2
+
+
+def test_a_difference_beside_its_operands_is_held_to_their_round_off():
+    """anchor.stability_boundary-like values: 22.022 - 22.0 moved by 2.3e-11 when both
+    operands moved by round-off (measured between OpenBLAS's Haswell and SkylakeX
+    kernels); the same move of a difference recorded without its operands, or a move
+    far beyond the operands' round-off, fails."""
+    from validation.baseline import ROUNDOFF_RTOL, compare_with_baseline, difference_scales
+
+    def run(full, red, with_operands=True):
+        v = {"difference": full - red, "tolerance": 0.05}
+        if with_operands:
+            v |= {"full_linearised": full, "reduced_characteristic_roots": red}
+        return {"checks": [{"name": "anchor", "values": v}]}
+
+    base = run(22.02200006189668, 22.0)
+    assert difference_scales(base) == {"anchor.difference": 22.02200006189668}
+    for full in (22.022000061919655, 22.02200006189668 * (1 + 5e-12)):
+        # +1.04e-12 relative (measured; the difference +1.04e-9) and +5e-12 (the difference
+        # +5e-9 relative: beyond ROUNDOFF_RTOL of its own size)
+        moved = run(full, 22.0)
+        assert all(c.status == "pass" for c in compare_with_baseline(moved, base, "roundoff"))
+    alone = [c.status for c in compare_with_baseline(
+        run(22.022000061919655 + 3e-11, 22.0, False), run(22.02200006189668, 22.0, False),
+        "roundoff")]  # fmt: skip
+    assert alone == ["fail", "pass"]  # the difference, then the tolerance
+    far = run(22.02200006189668 * (1 + 3 * ROUNDOFF_RTOL), 22.0)
+    bad = sorted(c.name for c in compare_with_baseline(far, base, "roundoff")
+                 if c.status == "fail")  # fmt: skip
+    assert bad == ["regression.anchor.difference", "regression.anchor.full_linearised"]
 
 
 def test_selftest_cli(selftest_run, monkeypatch, capsys):

@@ -3,16 +3,23 @@
 With the same seeds, a run reproduces every number of its baseline exactly
 when nothing that decides round-off changed (:mod:`validation.fingerprint`:
 package versions, CPU architecture and instruction-set flags, numpy/BLAS
-build; not the kernel's build string), so the comparison has three modes:
+build, the kernels OpenBLAS chose for the CPU; not the kernel's build string), so
+the comparison has three modes:
 
 * **exact** (all of those match): every number of every check (values,
   distances, residuals, measured delays, the paired differences) and of the
   paper table must be reproduced to a relative 1e-12 (bit for bit in
   practice); each moved number is named with its old and new value.
-* **roundoff** (same package versions, another CPU or numpy/BLAS build, or a
-  baseline that does not record them): every number again, each to
+* **roundoff** (same package versions, another CPU, numpy/BLAS build or BLAS
+  kernels, or a baseline that does not record them): every number again, each to
   |new - old| <= :data:`ROUNDOFF_RTOL` max(|new|, |old|) + :data:`ROUNDOFF_ATOL`;
-  measured delays (integers) exactly.  Measured: forcing OpenBLAS onto another
+  measured delays (integers) exactly.  A number named ``difference`` recorded
+  beside the two numbers it is the difference of is held relative to them
+  (:func:`difference_scales`): the difference of two numbers near 22 that each
+  move by round-off moves by their round-off, 1e3 times its own size (measured:
+  ``anchor.stability_boundary.coupled``, 22.022 - 22.000, moved 2.3e-11 between
+  OpenBLAS's Haswell and SkylakeX kernels, a relative 1.04e-9 of the difference
+  against 1.04e-12 of its operands).  Measured: forcing OpenBLAS onto another
   CPU's kernels (``OPENBLAS_CORETYPE=Prescott``, with numba compiled for a
   generic CPU and numpy's AVX2/AVX-512 dispatch off) moved 96 of the smoke
   profile's 684 numbers; every move was at most 6.7e-15 absolute (differences
@@ -34,6 +41,7 @@ refused in ``auto`` and compared only in a mode asked for by name.
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -100,6 +108,39 @@ def all_numbers(results: dict) -> dict[str, float | None]:
     return out
 
 
+def difference_scales(results: dict) -> dict[str, float]:
+    """The scale of each number named ``difference`` that has its operands beside it.
+
+    Where a check's values hold ``difference`` and two other numbers ``a``, ``b``
+    with ``a - b == difference`` (to relative 1e-12 of max(|a|, |b|)), the path of
+    the difference (as :func:`all_numbers` names it) maps to max(|a|, |b|): round-off
+    in ``a`` and ``b`` reaches the difference at that scale, not at its own.
+    """
+    out: dict[str, float] = {}
+
+    def num(x: Any) -> bool:
+        return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+
+    def walk(prefix: str, v: Any) -> None:
+        if isinstance(v, dict):
+            d = v.get("difference")
+            if num(d):
+                others = [x for k, x in v.items() if k != "difference" and num(x)]
+                scales = [max(abs(a), abs(b)) for a, b in itertools.permutations(others, 2)
+                          if abs(a - b - d) <= 1e-12 * max(abs(a), abs(b))]  # fmt: skip
+                if scales:
+                    out[f"{prefix}.difference"] = max(scales)
+            for k, x in v.items():
+                walk(f"{prefix}.{k}", x)
+        elif isinstance(v, list):
+            for i, x in enumerate(v):
+                walk(f"{prefix}[{i}]", x)
+
+    for c in results["checks"]:
+        walk(c["name"], c["values"])
+    return out
+
+
 class BaselineMismatch(ParameterError):
     """The baseline was made from other model files: not a regression reference in ``auto``."""
 
@@ -121,8 +162,10 @@ def _numerics_diff(results: dict, baseline: dict) -> list[str] | None:
     if not fr or not fb:
         return None
     out = []
-    for key in ("machine", "cpu_flags", "numpy_build"):
-        if fr.get(key) != fb.get(key):
+    for key in ("machine", "cpu_flags", "numpy_build", "blas_kernels"):
+        if key not in fb:
+            out.append(f"the baseline does not record its {key.replace('_', ' ')}")
+        elif fr.get(key) != fb.get(key):
             a, b = fb.get(key), fr.get(key)
             if isinstance(a, list) and isinstance(b, list):
                 gone, new = sorted(set(a) - set(b)), sorted(set(b) - set(a))
@@ -136,9 +179,9 @@ def choose_mode(results: dict, baseline: dict, requested: str = "auto") -> tuple
     """(mode, reason), decided by what changes numbers (module docstring).
 
     ``auto``: exact when the package versions, the CPU architecture and
-    instruction-set flags and the numpy/BLAS build match the baseline's;
-    round-off when only the CPU or the numpy/BLAS build differ (or the
-    baseline does not record them); statistical when a package version
+    instruction-set flags, the numpy/BLAS build and the BLAS kernels match the
+    baseline's; round-off when only the CPU, the numpy/BLAS build or the BLAS
+    kernels differ (or the baseline does not record them); statistical when a package version
     differs.  A baseline made from other model files raises
     :class:`BaselineMismatch` in ``auto`` (a requested mode compares anyway and
     says so).  The kernel's build string plays no part.
@@ -164,16 +207,22 @@ def choose_mode(results: dict, baseline: dict, requested: str = "auto") -> tuple
                             "fingerprint, so round-off may differ")  # fmt: skip
     if ndiff:
         return "roundoff", "same package versions; round-off may differ: " + ", ".join(ndiff)
-    return "exact", ("same package versions, CPU architecture and instruction-set flags and "
-                     "numpy/BLAS build as the baseline")  # fmt: skip
+    return "exact", ("same package versions, CPU architecture and instruction-set flags, "
+                     "numpy/BLAS build and BLAS kernels as the baseline")  # fmt: skip
 
 
-def _same(v: float | None, vb: float | None, rtol: float = EXACT_RTOL, atol: float = 0.0) -> bool:
+def _same(
+    v: float | None,
+    vb: float | None,
+    rtol: float = EXACT_RTOL,
+    atol: float = 0.0,
+    scale: float = 0.0,
+) -> bool:
     if v is None or vb is None:
         return v is vb
     if v == vb:
         return True
-    return abs(v - vb) <= rtol * max(abs(v), abs(vb)) + atol
+    return abs(v - vb) <= rtol * max(abs(v), abs(vb), scale) + atol
 
 
 def compare_exact(
@@ -183,6 +232,9 @@ def compare_exact(
     mode = "exact" if rtol == EXACT_RTOL else "roundoff"
     tol = f"relative {rtol:g}" + (f" + absolute {atol:g}" if atol else "")
     new, old = all_numbers(results), all_numbers(baseline)
+    scales = difference_scales(baseline)
+    for name, sc in difference_scales(results).items():
+        scales[name] = max(sc, scales.get(name, 0.0))
     checks = []
     for name in sorted(set(new) | set(old)):
         if name not in new or name not in old:
@@ -192,13 +244,20 @@ def compare_exact(
             continue
         v, vb = new[name], old[name]
         exact_key = name.rsplit(".", 1)[-1] in STEP_KEYS  # integers: never round-off
-        ok = _same(v, vb, EXACT_RTOL, 0.0) if exact_key else _same(v, vb, rtol, atol)
+        scale = scales.get(name, 0.0)
+        if exact_key:
+            ok = _same(v, vb, EXACT_RTOL, 0.0)
+        else:
+            ok = _same(v, vb, rtol, atol, scale)
         rel = None if v is None or vb is None or vb == 0 else (v - vb) / abs(vb)
+        values = {"value": v, "baseline": vb, "relative_change": rel}
+        if scale:
+            values["operand_scale"] = scale
         checks.append(Check(
-            f"regression.{name}", PASS if ok else FAIL,
-            {"value": v, "baseline": vb, "relative_change": rel},
+            f"regression.{name}", PASS if ok else FAIL, values,
             tolerance=f"{mode} mode: reproduced to "
-            + (f"relative {EXACT_RTOL:g}" if exact_key else tol),
+            + (f"relative {EXACT_RTOL:g}" if exact_key else tol)
+            + (" of its operands' size (a difference)" if scale and not exact_key else ""),
         ))  # fmt: skip
     return checks
 

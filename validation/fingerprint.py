@@ -6,8 +6,15 @@ that is (a) the versions of the packages that compute (numpy, scipy, numba,
 MuJoCo, Python, cipval), (b) the instruction set the code is compiled for or
 dispatches to at run time: the CPU architecture and its SIMD/FMA flags (numba
 compiles for the host CPU; numpy and OpenBLAS choose kernels by CPU feature),
-(c) the build of numpy and its BLAS.  The kernel's build string
-(``platform.platform()``) changes none of these and is not part of it.
+(c) the build of numpy and its BLAS, (d) the kernels OpenBLAS picked at
+start-up (:func:`blas_kernels`).  OpenBLAS chooses its kernels by the CPU's
+family and model, not only its flags: on an AMD family-26 CPU (Zen 5) OpenBLAS
+0.3.31 takes its Haswell kernels, on the machine that made the shipped baseline
+(the same flags) its SkylakeX ones, and 10 of the quick profile's 933 numbers
+moved by round-off (relative 1e-12 to 1e-9, and more for differences of nearly
+equal numbers); ``OPENBLAS_CORETYPE=SkylakeX`` on the Zen 5 machine reproduced all
+933.  The kernel's build string (``platform.platform()``) changes none of these
+and is not part of it.
 
 The model files run (shipped or ``--mjcf``) are recorded by content digest:
 a baseline made from other model files is not a regression reference for this
@@ -22,7 +29,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-__all__ = ["NUMERIC_FLAGS", "cpu_flags", "model_digests", "numerics_fingerprint"]
+__all__ = ["NUMERIC_FLAGS", "blas_kernels", "cpu_flags", "model_digests", "numerics_fingerprint"]
 
 #: CPU flags that change which floating-point kernels run (x86 SIMD and FMA, Arm
 #: NEON/SVE); other flags (virtualisation, security mitigations) do not.
@@ -88,6 +95,20 @@ def _numpy_build() -> dict[str, Any]:
     }
 
 
+def blas_kernels() -> list[str]:
+    """The BLAS libraries loaded by numpy and SciPy, each as "library version kernels"
+    (threadpoolctl's ``internal_api``, ``version`` and ``architecture``: the kernel set
+    OpenBLAS chose for this CPU at start-up, e.g. ``openblas 0.3.31.188.0 SkylakeX``),
+    sorted, without repeats."""
+    import numpy  # noqa: F401  (loads numpy's BLAS)
+    import scipy.linalg  # noqa: F401  (loads SciPy's)
+    from threadpoolctl import threadpool_info
+
+    return sorted({f"{i.get('internal_api', '?')} {i.get('version', '?')} "
+                   f"{i.get('architecture', '?')}"
+                   for i in threadpool_info() if i.get("user_api") == "blas"})  # fmt: skip
+
+
 def model_digests(model_files: dict[str, str] | None = None) -> dict[str, str]:
     """sha256 (first 16 hex digits) of each model run: the user's ``--mjcf`` file, else
     the MJCF the suite generates at the default parameters (:func:`cip.model.mjcf`)."""
@@ -115,5 +136,6 @@ def numerics_fingerprint(model_files: dict[str, str] | None = None) -> dict[str,
         "machine": platform.machine(),
         "cpu_flags": list(cpu_flags()),
         "numpy_build": _numpy_build(),
+        "blas_kernels": blas_kernels(),
         "model_digests": model_digests(model_files),
     }
