@@ -29,14 +29,22 @@ Wire format, version 1 (all numbers little-endian IEEE-754 float64 or int64):
    (nq: cart x in m, pendulum angle in rad, per controller), qvel (nv), then
    the remaining physics state, which an engine without it passes through.
 2. The engine answers one JSON line: ``{"protocol": "cipval-chunk", "version":
-   1, "engine": "NAME"}``, or ``{"error": "why"}`` and exits.
+   1, "engine": "NAME"}``, or ``{"error": "why"}`` and exits.  It may add
+   ``"sessions": "many"``: it then serves another session after this one (below).
 3. For every chunk cipval writes a **request frame**: int64 n (1 <= n <= d,
    the steps of this chunk), the R start states (R x S float64, row-major),
    the controls (R x n x U float64: control k is held over step k).  The
    engine answers a **response frame**: int64 w (its warnings so far: failed
    steps, instabilities), then the R x n states *after* each step
    (R x n x S float64).
-4. A request with n = 0 ends the session; the engine exits with status 0.
+4. A request with n = 0 ends the session.  An engine that did not answer
+   ``"sessions": "many"`` exits with status 0.  One that did reads the next line:
+   another header (step 1: a new session, with nothing kept from the last one),
+   or the end of its stdin, where it exits with status 0.  cipval keeps such an
+   engine between sessions (:data:`IDLE_PER_COMMAND` of them per command) instead
+   of starting the program for every run: a validation run holds some twenty
+   sessions, and a program's start-up (its runtime, its imports, a JIT) is paid
+   once.  Its stdin closes when cipval ends, however it ends.
 
 ``examples/chunk_engine.py`` is a reference implementation of the engine side
 (numpy and MuJoCo only).  Anything the child writes to stderr goes to
@@ -47,10 +55,12 @@ then exits 4 with the partial results.
 
 from __future__ import annotations
 
+import atexit
 import base64
 import json
 import shlex
 import subprocess
+import threading
 import weakref
 from dataclasses import asdict
 from typing import Any, ClassVar
@@ -64,10 +74,15 @@ from cipcore.params import ParameterError
 from .drake_plant import geometry_from_mujoco
 from .engines import RigidBodyEngine
 
-__all__ = ["PROTOCOL", "VERSION", "EngineProcessError", "ProcessRollout", "process_engine"]
+__all__ = ["IDLE_PER_COMMAND", "PROTOCOL", "VERSION", "EngineProcessError", "ProcessRollout",
+           "close_idle_engines", "idle_engines", "process_engine"]  # fmt: skip
 
 PROTOCOL, VERSION = "cipval-chunk", 1
 _I64, _F64 = np.dtype("<i8"), np.dtype("<f8")
+#: engines kept between sessions per command (those that answered ``"sessions": "many"``)
+IDLE_PER_COMMAND = 2
+_idle: dict[tuple[str, ...], list[subprocess.Popen]] = {}
+_idle_lock = threading.Lock()
 
 
 class EngineProcessError(RuntimeError):
@@ -101,16 +116,62 @@ def header(model: mujoco.MjModel, n_realizations: int) -> dict[str, Any]:
     }  # fmt: skip
 
 
-def _close(proc: subprocess.Popen) -> None:
+def _end(proc: subprocess.Popen) -> None:
+    """Close an engine's stdin and wait for it (killed after 10 s)."""
     try:
-        if proc.poll() is None:
-            proc.stdin.write(np.zeros(1, _I64).tobytes())
-            proc.stdin.flush()
-            proc.stdin.close()
-            proc.wait(timeout=10)
+        proc.stdin.close()
+        proc.wait(timeout=10)
     except (OSError, ValueError, subprocess.TimeoutExpired):
         proc.kill()
         proc.wait()
+
+
+def _close(proc: subprocess.Popen, session: dict) -> None:
+    """End a session (request n = 0): the engine is kept for the next one when it serves
+    many and the session ended between frames; else it ends."""
+    try:
+        if proc.poll() is None and not session["in_frame"]:
+            proc.stdin.write(np.zeros(1, _I64).tobytes())
+            proc.stdin.flush()
+    except (OSError, ValueError):
+        session["reusable"] = False
+    if session["reusable"] and not session["in_frame"] and proc.poll() is None:
+        with _idle_lock:
+            idle = _idle.setdefault(session["key"], [])
+            if len(idle) < IDLE_PER_COMMAND:
+                idle.append(proc)
+                return
+    if session["in_frame"] and proc.poll() is None:
+        proc.kill()  # a frame was cut off (an interrupt): its answer is in no known state
+    _end(proc)
+
+
+def _take_idle(key: tuple[str, ...]) -> subprocess.Popen | None:
+    """A kept engine of this command still running, or None."""
+    with _idle_lock:
+        idle = _idle.get(key, [])
+        while idle:
+            proc = idle.pop()
+            if proc.poll() is None:
+                return proc
+            _end(proc)
+    return None
+
+
+def idle_engines(command: str) -> list[int]:
+    """Process ids of the engines of ``command`` kept between sessions (running ones)."""
+    with _idle_lock:
+        return [p.pid for p in _idle.get(tuple(shlex.split(command)), []) if p.poll() is None]
+
+
+@atexit.register
+def close_idle_engines() -> None:
+    """End every engine kept between sessions (at exit; also for tests)."""
+    with _idle_lock:
+        procs = [p for idle in _idle.values() for p in idle]
+        _idle.clear()
+    for proc in procs:
+        _end(proc)
 
 
 class ProcessRollout:
@@ -126,18 +187,34 @@ class ProcessRollout:
         self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         self.nu = model.nu
         self._warnings = 0
+        key = tuple(self.command)
+        line = (json.dumps(header(model, n_realizations)) + "\n").encode()
+        kept = _take_idle(key)
+        if kept is not None:
+            try:  # a kept engine that cannot take the header is replaced by a new one
+                self._open(kept, key, line)
+                return
+            except EngineProcessError:
+                self._finalizer.detach()
+                kept.kill()
+                kept.wait()
         try:
-            self.proc = subprocess.Popen(self.command, stdin=subprocess.PIPE,
-                                         stdout=subprocess.PIPE)  # fmt: skip
+            proc = subprocess.Popen(self.command, stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE)  # fmt: skip
         except OSError as exc:
             cmd = shlex.join(self.command)
             raise EngineProcessError(f"cannot start engine {cmd!r}: {exc}") from None
-        self._finalizer = weakref.finalize(self, _close, self.proc)
-        line = json.dumps(header(model, n_realizations)) + "\n"
+        self._open(proc, key, line)
+
+    def _open(self, proc: subprocess.Popen, key: tuple[str, ...], line: bytes) -> None:
+        """Start a session on ``proc``: the header, the engine's answer."""
+        self.proc = proc
+        self._session = {"key": key, "reusable": False, "in_frame": False}
+        self._finalizer = weakref.finalize(self, _close, proc, self._session)
         try:
-            self.proc.stdin.write(line.encode())
-            self.proc.stdin.flush()
-            reply = self.proc.stdout.readline()
+            proc.stdin.write(line)
+            proc.stdin.flush()
+            reply = proc.stdout.readline()
         except OSError as exc:
             raise self._broken(f"handshake failed ({exc})") from None
         try:
@@ -148,6 +225,7 @@ class ProcessRollout:
             why = answer.get("error") if isinstance(answer, dict) else f"answered {reply[:80]!r}"
             raise self._broken(f"refused the session: {why}")
         self.engine_name = str(answer.get("engine", "?"))
+        self._session["reusable"] = answer.get("sessions") == "many"
 
     def _broken(self, what: str) -> EngineProcessError:
         try:  # a child that died: give the OS a moment to report its status
@@ -162,6 +240,7 @@ class ProcessRollout:
         frame = (np.array([n], _I64).tobytes() + np.ascontiguousarray(state, _F64).tobytes()
                  + np.ascontiguousarray(ctrl, _F64).tobytes())  # fmt: skip
         want = 8 + out.size * 8
+        self._session["in_frame"] = True
         try:
             self.proc.stdin.write(frame)
             self.proc.stdin.flush()
@@ -170,6 +249,7 @@ class ProcessRollout:
             raise self._broken(f"broke the pipe ({exc})") from None
         if data is None or len(data) != want:
             raise self._broken(f"answered {len(data or b'')} of {want} bytes")
+        self._session["in_frame"] = False
         self._warnings = int(np.frombuffer(data[:8], _I64)[0])
         out[...] = np.frombuffer(data[8:], _F64).reshape(out.shape)
 
@@ -177,7 +257,8 @@ class ProcessRollout:
         return self._warnings
 
     def close(self) -> None:
-        """End the session (request n = 0); also done when the backend is collected."""
+        """End the session (request n = 0; the engine is kept for the next session when
+        it serves many); also done when the backend is collected."""
         self._finalizer()
 
 

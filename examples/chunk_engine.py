@@ -5,8 +5,12 @@ cipval starts this program (``cip-validate engines --engine-cmd "python
 examples/chunk_engine.py"``), writes one JSON header line with the model,
 then for every delay chunk a request frame (int64 n, the R start states, the
 R x n controls) and reads a response frame (int64 warnings, the R x n states
-after each step); n = 0 ends the session.  The protocol is documented in
-cipval's README ("Engines in other programs") and in ``cip/process.py``.
+after each step); n = 0 ends the session.  It answers ``"sessions": "many"``:
+after a session it reads the next header (a new session, nothing kept from
+the last) until its stdin ends, so cipval starts it once, not once per run
+(``--one-session``: it exits after one, as an engine that does not say so).
+The protocol is documented in cipval's README ("Engines in other programs")
+and in ``cip/process.py``.
 
 This engine steps the model MuJoCo ships in the header (``mjb_base64``) with
 ``mujoco.rollout`` (``mj_step`` over each realisation's controls, in C); an
@@ -51,9 +55,22 @@ def load_model(header: dict) -> mujoco.MjModel:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--delay-error", action="store_true", help="apply each control one step late")
+    ap.add_argument("--one-session", action="store_true",
+                    help="exit after one session instead of serving the next")  # fmt: skip
     args = ap.parse_args()
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
-    header = json.loads(stdin.readline())
+    while True:
+        line = stdin.readline()
+        if not line:  # cipval closed our stdin: no further session
+            return 0
+        status = session(json.loads(line), args, stdin, stdout)
+        if status or args.one_session:
+            return status
+
+
+def session(header: dict, args: argparse.Namespace, stdin, stdout) -> int:
+    """One session: the answer to ``header``, then chunks until n = 0 (0), or 1 when the
+    header is refused."""
     if header.get("protocol") != "cipval-chunk" or header.get("version") != 1:
         stdout.write(b'{"error": "this engine speaks cipval-chunk version 1 only"}\n')
         stdout.flush()
@@ -64,9 +81,10 @@ def main() -> int:
     R, S, U = header["n_realizations"], header["nstate"], header["nu"]
     assert mujoco.mj_stateSize(model, spec) == S and model.nu == U
     name = "chunk-example" + ("-delay-error" if args.delay_error else "")
-    stdout.write(
-        (json.dumps({"protocol": "cipval-chunk", "version": 1, "engine": name}) + "\n").encode()
-    )
+    answer = {"protocol": "cipval-chunk", "version": 1, "engine": name}
+    if not args.one_session:
+        answer["sessions"] = "many"
+    stdout.write((json.dumps(answer) + "\n").encode())
     stdout.flush()
     previous = np.zeros((R, U))  # the control held before the first step (delay error only)
     warnings = 0

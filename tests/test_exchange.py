@@ -29,6 +29,74 @@ def test_example_engine_is_bit_identical_to_mujoco_in_process():
         assert np.array_equal(ext[field], own[field])
 
 
+def test_an_engine_serving_many_sessions_is_started_once_and_ended_with_cipval():
+    """The example answers "sessions": "many": two runs in a row use one process, each
+    bit-identical to in-process MuJoCo; `--one-session` is started per run and kept by
+    nobody; closing the kept engines ends them (no process left behind)."""
+    import os
+
+    from cip.process import close_idle_engines, idle_engines, process_engine
+    from cipcore.params import BalanceParams
+    from cipcore.registry import get_engine
+
+    p = BalanceParams(beta=21.032)
+    for command, kept in ((CMD, 1), (f"{CMD} --one-session", 0)):
+        close_idle_engines()
+        ext, pids = process_engine(command), []
+        for model in ("single", "coupled"):
+            got = ext.simulate(model, p, 0.3, 2, seed=5, amplitude=1e-3)
+            own = get_engine("mujoco").simulate(model, p, 0.3, 2, seed=5, amplitude=1e-3)
+            assert np.array_equal(got["balancing_error"], own["balancing_error"]), command
+            pids.append(idle_engines(command))
+        assert len(pids[0]) == kept and pids[0] == pids[1], (command, pids)
+    assert idle_engines(CMD) == []  # ended by close_idle_engines before the second command
+    ext = process_engine(CMD)
+    ext.simulate("single", p, 0.2, 1, seed=1)
+    (pid,) = idle_engines(CMD)
+    close_idle_engines()
+    assert idle_engines(CMD) == []
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)  # reaped: it exited when its stdin closed
+
+
+def test_a_session_cut_mid_frame_is_not_kept_and_a_dead_kept_engine_is_replaced():
+    import os
+    import signal
+
+    import mujoco
+
+    from cip.model import mjcf
+    from cip.process import close_idle_engines, idle_engines, process_engine
+    from cipcore.params import BalanceParams
+
+    close_idle_engines()
+    backend = process_engine(CMD).backend()
+    m = mujoco.MjModel.from_xml_string(mjcf("single"))
+    ns = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    state, ctrl = np.zeros((1, ns)), np.zeros((1, 5, m.nu))
+    out = np.empty((1, 5, ns))
+    r = backend(m, 1, 1)
+    r(state, ctrl, out)  # a whole frame
+
+    def cut(n):
+        raise KeyboardInterrupt
+
+    r.proc.stdout.read = cut  # interrupted between request and answer
+    with pytest.raises(KeyboardInterrupt):
+        r(state, ctrl, out)
+    proc = r.proc
+    r.close()
+    assert idle_engines(CMD) == [] and proc.poll() is not None
+    # a kept engine that died meanwhile is replaced by a new one
+    ext = process_engine(CMD)
+    ext.simulate("single", BalanceParams(beta=21.032), 0.2, 1, seed=1)
+    (pid,) = idle_engines(CMD)
+    os.kill(pid, signal.SIGKILL)
+    ext.simulate("single", BalanceParams(beta=21.032), 0.2, 1, seed=1)
+    assert len(idle_engines(CMD)) == 1 and idle_engines(CMD) != [pid]
+    close_idle_engines()
+
+
 def test_contract_passes_for_the_example_and_fails_with_a_one_step_delay_error(tmp_path, capsys):
     junit = tmp_path / "c.xml"
     assert main(["contract", "--engine-cmd", CMD, "--junit", str(junit)]) == 0
