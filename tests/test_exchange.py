@@ -97,6 +97,61 @@ def test_a_session_cut_mid_frame_is_not_kept_and_a_dead_kept_engine_is_replaced(
     close_idle_engines()
 
 
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, exited but not yet reaped, does not)."""
+    import os
+
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    except OSError:  # no /proc: ask the kernel
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+    return stat.rpartition(")")[2].split()[0] != "Z"
+
+
+def test_kept_engines_end_when_cipval_is_killed():
+    """A kept engine waits on its stdin: SIGKILL of cipval closes it and the engine exits
+    (no orphan), whether it was idle or in a session."""
+    import os
+    import signal
+    import subprocess
+    import time
+
+    code = (
+        "import sys, time\n"
+        "from cip.process import idle_engines, process_engine\n"
+        "from cipcore.params import BalanceParams\n"
+        f"cmd = {CMD!r}\n"
+        "process_engine(cmd).simulate('single', BalanceParams(beta=21.032), 0.2, 1, seed=1)\n"
+        "print(*idle_engines(cmd), flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    parent = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                              env=env)  # fmt: skip
+    try:
+        (pid,) = map(int, parent.stdout.readline().split())
+        assert _alive(pid)  # the kept engine waits for the next session
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            if not _alive(pid):
+                break
+            time.sleep(0.05)
+        else:
+            os.kill(pid, signal.SIGKILL)
+            pytest.fail(f"engine {pid} outlived its killed parent by 10 s")
+    finally:
+        parent.kill()
+        parent.wait()
+
+
 def test_contract_passes_for_the_example_and_fails_with_a_one_step_delay_error(tmp_path, capsys):
     junit = tmp_path / "c.xml"
     assert main(["contract", "--engine-cmd", CMD, "--junit", str(junit)]) == 0
