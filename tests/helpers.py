@@ -18,6 +18,15 @@ def engine_or_skip(name: str):
     return get_engine(name)
 
 
+def running(pid: int) -> bool:
+    """True while process ``pid`` exists and is not a zombie (Linux ``/proc``)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
 async def until(ws, kind: str, timeout: float = 20.0) -> dict:
     """Next JSON message of type ``kind`` on an aiohttp websocket (others are skipped).
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import running
 
 from validation.cli import main
 
@@ -97,23 +98,7 @@ def test_a_session_cut_mid_frame_is_not_kept_and_a_dead_kept_engine_is_replaced(
     close_idle_engines()
 
 
-def _alive(pid: int) -> bool:
-    """Whether process ``pid`` runs (a zombie, exited but not yet reaped, does not)."""
-    import os
-
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except FileNotFoundError:
-        return False
-    except OSError:  # no /proc: ask the kernel
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return False
-        return True
-    return stat.rpartition(")")[2].split()[0] != "Z"
-
-
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 def test_kept_engines_end_when_cipval_is_killed():
     """A kept engine waits on its stdin: SIGKILL of cipval closes it and the engine exits
     (no orphan), whether it was idle or in a session."""
@@ -136,12 +121,12 @@ def test_kept_engines_end_when_cipval_is_killed():
                               env=env)  # fmt: skip
     try:
         (pid,) = map(int, parent.stdout.readline().split())
-        assert _alive(pid)  # the kept engine waits for the next session
+        assert running(pid)  # the kept engine waits for the next session
         parent.send_signal(signal.SIGKILL)
         parent.wait()
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline:
-            if not _alive(pid):
+            if not running(pid):
                 break
             time.sleep(0.05)
         else:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import engine_or_skip
+from helpers import engine_or_skip, running
 
 from cipcore.params import BalanceParams
 
@@ -193,16 +193,7 @@ def test_workers_end_when_their_parent_is_killed(tmp_path, slow_worker):
     alive = pids
     while alive and time.monotonic() < deadline:
         time.sleep(0.1)
-        alive = [p for p in pids if _running(p)]
+        alive = [p for p in pids if running(p)]
     for pid in alive:  # leave no orphan behind on failure either
         os.kill(pid, signal.SIGKILL)
     assert not alive, f"workers {alive} outlived their killed parent"
-
-
-def _running(pid: int) -> bool:
-    """True while process ``pid`` exists and is not a zombie."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(")")[-1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
