@@ -29,6 +29,7 @@ XDIST_GROUPS = {
     "test_experiment_analyze.py": "experiment_analyze",
     "test_paper_table.py": "paper_table",
     "test_sweep_studies.py": "sweep_studies",
+    "test_process_workers.py": "fork",
 }
 
 
@@ -44,6 +45,13 @@ def xdist_unit(nodeid: str) -> str:
 #: server and browser
 REALTIME_WORKER = "gw0"
 
+#: groups a worker takes before any other unit: "realtime" (above); "fork", the engines'
+#: worker processes (``cip.workers``), first on a fresh worker, where no test has loaded
+#: JAX yet, so that they fork (0.1 to 0.4 s a split) instead of starting from a fork
+#: server that imports the engine in every process (2 to 3 s a split, every one of them
+#: importing the engine again); a test of their own runs the fork server on purpose
+FIRST_ON = {"realtime": REALTIME_WORKER, "fork": "gw1"}
+
 
 def pytest_configure(config) -> None:
     worker = os.environ.get("PYTEST_XDIST_WORKER")
@@ -55,7 +63,7 @@ def pytest_configure(config) -> None:
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadgroup`` with the groups of :data:`XDIST_GROUPS` (pytest-xdist's scope
     scheduler: the largest groups first, then one test at a time to whichever worker is
-    free), the "realtime" group on :data:`REALTIME_WORKER`."""
+    free), each group of :data:`FIRST_ON` first on its worker."""
     if config.getoption("dist") != "loadgroup":
         return None
     from xdist.scheduler import LoadScopeScheduling
@@ -66,10 +74,11 @@ def pytest_xdist_make_scheduler(config, log):
 
         def _assign_work_unit(self, node) -> None:
             queue = self.workqueue
-            if "realtime" in queue and list(queue) != ["realtime"]:
-                # the realtime worker takes it first; the others take any other unit
-                first = node.gateway.id == REALTIME_WORKER
-                queue.move_to_end("realtime", last=not first)
+            pinned = [g for g in FIRST_ON if g in queue]
+            if pinned and len(pinned) < len(queue):
+                # a pinned group's worker takes it first; the others take any other unit
+                for group in pinned:
+                    queue.move_to_end(group, last=FIRST_ON[group] != node.gateway.id)
             super()._assign_work_unit(node)
 
     return Grouped(config, log)

@@ -200,25 +200,26 @@ def _check_rate(tr, frames_seen):
     return rate, float(np.median(jitter)), float(np.percentile(jitter, 99)), float(jitter.max())
 
 
-def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
-    url, out = server
+def _single_trial(browser, url, out, shots):
+    """A single trial played to its end by time; its rate statistics."""
     p1 = _page(browser, url)
     _create(p1, "single", "A", 1)
-    assert p1.inner_text("#status") == "You are seat 1 (red). Press Ready when set."
-    assert p1.is_disabled("#mode") and p1.is_disabled("#create")  # the session is fixed
-    help_text = p1.inner_text("#help")
-    assert "thin line" in help_text and "thick line" in help_text and "rigid rod" in help_text
-    assert "You are seat 1 (red)" in help_text and "red: A = you" in help_text
     _start([p1], shots, "single", sticks=1)
     _play([p1], DURATION + 3, shots=shots, name="single_running")
     assert _wait_end(p1) == "time"
     single = load_trial(_newest(out, "single_A"))
     assert single.attrs["end"]["reason"] == "time" and single.time.size == round(DURATION * 50) + 1
-    stats_s = _check_rate(single, p1.evaluate("window.cipvalFramesSeen"))
+    stats = _check_rate(single, p1.evaluate("window.cipvalFramesSeen"))
     assert np.nanstd(single["mouse_pixel"][0, :, 0]) > 5  # the scripted mouse moved the line
-
     assert p1.is_disabled("#abort") and p1.is_disabled("#ready")  # nothing to abort now
+    assert (shots / "single_running.png").stat().st_size > 1000
+    p1.context.close()
+    return stats
 
+
+def _coupled_trial(browser, url, out, shots):
+    """A coupled trial of two pages (two subjects) played to its end by time, with the
+    client side kept in the recording; its rate statistics."""
     a = _page(browser, url)
     _create(a, "coupled", "A", 1, partner="B")
     link = a.inner_text("#link")
@@ -240,7 +241,7 @@ def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
     assert _wait_end(a) == "time" and _wait_end(b) == "time"
     coupled = load_trial(_newest(out, "coupled_A-B"))
     assert coupled.attrs["pair"] == ["A", "B"] and coupled.time.size == round(DURATION * 50) + 1
-    stats_c = _check_rate(coupled, a.evaluate("window.cipvalFramesSeen"))
+    stats = _check_rate(coupled, a.evaluate("window.cipvalFramesSeen"))
     assert b.evaluate("window.cipvalFramesSeen") == coupled.time.size
     px = coupled["mouse_pixel"][0]
     assert np.nanstd(px[:, 0]) > 5 and np.nanstd(px[:, 1]) > 5
@@ -255,21 +256,46 @@ def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
         assert set(used[1:]) <= set(xs[seats == i]) and len(set(used)) > 10
     drawn = np.array(ev["drawn"]["k"])[np.array(ev["drawn"]["seat"]) == 0]
     assert drawn.size > 0.8 * coupled.time.size  # the last half second may not be reported
-    print(
-        f"browser single: rate {stats_s[0]:.4f} Hz, jitter median/p99/max "
-        f"{stats_s[1] * 1e3:.2f}/{stats_s[2] * 1e3:.2f}/{stats_s[3] * 1e3:.2f} ms"
-    )
-    print(
-        f"browser coupled: rate {stats_c[0]:.4f} Hz, jitter median/p99/max "
-        f"{stats_c[1] * 1e3:.2f}/{stats_c[2] * 1e3:.2f}/{stats_c[3] * 1e3:.2f} ms"
-    )
-    assert (shots / "single_running.png").stat().st_size > 1000
     assert (shots / "coupled_running.png").stat().st_size > 1000
+    for ctx in {p.context for p in (a, b)}:
+        ctx.close()
+    return stats
 
+
+def _print_rate(mode, stats):
+    print(f"browser {mode}: rate {stats[0]:.4f} Hz, jitter median/p99/max "
+          f"{stats[1] * 1e3:.2f}/{stats[2] * 1e3:.2f}/{stats[3] * 1e3:.2f} ms")  # fmt: skip
+
+
+def test_single_page_explains_the_task_and_fixes_the_session(server, browser):
+    url, _ = server
+    p1 = _page(browser, url)
+    _create(p1, "single", "A", 1)
+    assert p1.inner_text("#status") == "You are seat 1 (red). Press Ready when set."
+    assert p1.is_disabled("#mode") and p1.is_disabled("#create")  # the session is fixed
+    help_text = p1.inner_text("#help")
+    assert "thin line" in help_text and "thick line" in help_text and "rigid rod" in help_text
+    assert "You are seat 1 (red)" in help_text and "red: A = you" in help_text
+    p1.context.close()
+
+
+def test_coupled_trial_in_the_browser(server, browser, shots):
+    """The fast version of the test below: the coupled trial alone (two pages, the rod,
+    the rate, no lost frame, the client side), and its analysis."""
+    url, out = server
+    _print_rate("coupled", _coupled_trial(browser, url, out, shots))
+    paths = write_report(out, out / "analysis")
+    assert (out / "analysis" / "report.html").exists()
+    assert {"move_c.png", "stcc_c.png"} <= {p.name for p in paths}
+
+
+@pytest.mark.slow
+def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
+    url, out = server
+    _print_rate("single", _single_trial(browser, url, out, shots))
+    _print_rate("coupled", _coupled_trial(browser, url, out, shots))
     paths = write_report(out, out / "analysis")
     assert (out / "analysis" / "report.html").exists() and len(paths) >= 6
-    for ctx in {p.context for p in (p1, a, b)}:
-        ctx.close()
 
 
 def test_end_rules_in_the_browser(server, browser):

@@ -140,20 +140,21 @@ def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]
 
 
 def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tmp_path):
-    """The fast version of the test below: SIGTERM after two stages, then a resume stopped
-    one stage later; it reuses the kept stages, and every check so far has the numbers of
-    the uninterrupted run."""
+    """The fast version of the test below: SIGTERM after the first stage, then a resume
+    stopped one stage later; it reuses the kept stage, and every check so far has the
+    numbers of the uninterrupted run.  (The slow version keeps two stages, the figures'
+    process, SIGINT, and resumes to the end.)"""
     import signal
 
     from validation.harness import STAGES
 
     out = tmp_path / "interrupted"
     # without the figures' process (the slow version keeps it): the stages alone
-    code, err, kept = _interrupt_after(_start_run(out, "--no-figures"), out, 2, signal.SIGTERM)
+    code, err, kept = _interrupt_after(_start_run(out, "--no-figures"), out, 1, signal.SIGTERM)
     assert code == 143, err
     last = err.strip().splitlines()[-1]
     assert last.startswith("cip-validate: interrupted by SIGTERM: kept ") and "--resume" in last
-    assert len(kept) >= 2 and kept == list(STAGES[: len(kept)])
+    assert len(kept) >= 1 and kept == list(STAGES[: len(kept)])
     code, err, kept2 = _interrupt_after(
         _start_run(out, "--no-figures", "--resume"), out, len(kept) + 1, signal.SIGTERM
     )

@@ -39,6 +39,30 @@ def test_any_process_split_is_bit_identical(name, model, always_workers):
             assert np.array_equal(runs[p][field], runs[1][field]), (p, field)
 
 
+def test_a_split_from_the_fork_server_is_bit_identical(monkeypatch, always_workers):
+    """The workers of a process that has loaded a threaded runtime start from a fork
+    server (each imports the engine): the same numbers as the in-process run.  (The test
+    above forks: pytest-xdist runs this module first on a fresh worker, tests/conftest.py.)"""
+    from cip import workers
+
+    engine = engine_or_skip("drake")
+    params = BalanceParams(beta=20.0, alpha=22.0, gamma=50.0, nu=0.6, tau=0.01, dt=1e-3)
+    one = engine.simulate("coupled", params, 0.025, 3, seed=7, threads=1, progress=False)
+    monkeypatch.setattr(workers, "start_method", lambda: "forkserver")
+    started = []
+    init = workers.ProcessBlocks.__init__
+
+    def spy(self, *args):
+        init(self, *args)
+        started.append([p._popen.__class__.__module__ for p in self.procs])
+
+    monkeypatch.setattr(workers.ProcessBlocks, "__init__", spy)
+    two = engine.simulate("coupled", params, 0.025, 3, seed=7, threads=2, progress=False)
+    assert started and all(m == ["multiprocessing.popen_forkserver"] * 2 for m in started)
+    for field in one.data:
+        assert np.array_equal(two[field], one[field]), field
+
+
 def test_workers_follow_threads_and_end_with_the_rollout():
     import gc
 
