@@ -6,8 +6,10 @@ Each profile runs once as a fresh process (``python -m validation.cli run
 time (user + system of it and its children), the run's own elapsed time, and
 per stage the wall time and CPU time the run records (``timings_s``,
 ``cpu_s`` of ``results.json``), with the load average before and after each
-run.  On a shared machine the wall times follow the load; the CPU times much
-less, so compare those between runs made under different loads.
+run, and the host's speed (:mod:`hostspeed`: us per MuJoCo step) before each
+run and after the last.  On a shared machine the wall times follow the load and
+the host's speed; the CPU times follow the speed only, so compare those, and only
+between runs whose host speeds agree.
 
 Other options go to ``cip-validate run`` as they are (e.g. ``--baseline
 validation/data/baseline_quick.json``: its regression line is printed too).
@@ -27,6 +29,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import hostspeed
 
 
 def _load() -> str:
@@ -87,9 +91,15 @@ def main() -> None:
     print(f"cores: {os.cpu_count()}; python {sys.version.split()[0]}")
     out = []
     for profile in a.profiles.split(","):
+        host = hostspeed.line()
+        print(f"\n{host}")
         r = time_run(profile, a.seed, not a.no_figures, extra)
+        r["host_before"] = host
         report(r)
         out.append(r)
+    host = hostspeed.line()
+    print(f"\n{host}")
+    out[-1]["host_after"] = host
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=1))
 

@@ -6,7 +6,8 @@ markers and one pytest-xdist worker per core) and prints its summary line, the
 wall time, the CPU time (user + system of pytest, its workers and every child
 process they waited for) and the load average before and after.  On a shared
 machine the wall time follows the load; the CPU time much less, so compare
-that between runs made under different loads.
+that between runs made under different loads, and only between runs whose host
+speeds (:mod:`hostspeed`, printed before and after) agree.
 
 Usage:  python benchmarks/bench_tests.py [--json times.json] [PYTEST OPTIONS]
         e.g. ``-n 0`` (serial), ``-m slow``, ``--durations 20``
@@ -22,6 +23,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+import hostspeed
 
 
 def _load() -> str:
@@ -54,10 +57,13 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", type=Path, help="also write the numbers to this file")
     a, extra = ap.parse_known_args()
+    host_before = hostspeed.line()
     r = time_pytest(extra)
+    r["host_before"], r["host_after"] = host_before, hostspeed.line()
     print(f"{r['command']}: {r['summary']}")
     print(f"  wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s (user + sys), "
           f"{r['cores']} cores, load average {r['load_before']} -> {r['load_after']}")  # fmt: skip
+    print(f"  before: {r['host_before']}\n  after:  {r['host_after']}")
     for line in r["output_tail"]:
         print("  | " + line)
     if a.json:
