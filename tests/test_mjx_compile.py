@@ -62,3 +62,34 @@ def test_second_batch_size_compiles_nothing_new_and_padding_is_exact(monkeypatch
     for name in exact.data:
         assert np.array_equal(three[name], exact[name]), name
     assert np.isfinite(four["balancing_error"]).all()
+
+
+def test_a_later_process_reads_the_exported_chunk_instead_of_tracing(monkeypatch, tmp_path):
+    """The traced chunk is written once (``jax.export``) and read back by the next process,
+    which gets the same numbers; its key holds across processes (no object addresses);
+    a damaged file is written again."""
+    from cip import mjx
+
+    engine = get_engine("mjx")
+    if engine.unavailable():
+        pytest.skip(engine.unavailable())
+    pytest.importorskip("flatbuffers", reason="jax.export's serialisation needs flatbuffers")
+    monkeypatch.setenv("CIPVAL_MJX_EXPORT_DIR", str(tmp_path))
+    params = BalanceParams(beta=20.0, alpha=22.0, gamma=50.0, nu=0.6, tau=0.01, dt=1e-3)
+
+    def fresh_run():  # as a new process would: nothing compiled in this one yet
+        monkeypatch.setattr(mjx, "_COMPILED", {})
+        monkeypatch.setattr(mjx, "COMPILE_LOG", [])
+        res = engine.simulate("single", params, 0.02, 3, seed=5, progress=False)
+        return res, [r["exported"] for r in mjx.COMPILE_LOG]
+
+    first, log1 = fresh_run()
+    (path,) = tmp_path.glob("chunk-*.jaxexport")
+    second, log2 = fresh_run()
+    assert log1 == ["written"] and log2 == ["read"]
+    for name in first.data:
+        assert np.array_equal(first[name], second[name]), name
+    path.write_bytes(b"not an exported module")
+    third, log3 = fresh_run()
+    assert log3 == ["written"] and path.stat().st_size > 1000
+    assert np.array_equal(third["balancing_error"], first["balancing_error"])
