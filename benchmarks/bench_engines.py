@@ -69,7 +69,8 @@ def main() -> None:
     mjx = sys.modules.get("cip.mjx")
     for c in getattr(mjx, "COMPILE_LOG", []):
         print(f"mjx compiled {c['rows']} rows x {c['steps']} steps in {c['seconds']:.2f} s "
-              f"(persistent cache {c['persistent_cache']})")  # fmt: skip
+              f"(persistent cache {c['persistent_cache']}, "
+              f"exported chunk {c['exported']})")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -250,9 +250,11 @@ def _export_path(jax: Any, mx: Any, rows: int, steps: int) -> Path | None:
 
 
 def _exported_chunk(jax: Any, mx: Any, args: tuple) -> tuple[Any, str]:
-    """(the ``jax.export`` module of the chunk for ``mx`` and ``args``' shapes, "read" or
-    "written"): read from :func:`export_dir`, else traced, exported and written there.
-    The module takes the model's leaves (a list), its structure fixed in it."""
+    """(the ``jax.export`` module of the chunk for ``mx`` and ``args``' shapes, where it
+    came from: "read" from :func:`export_dir`, else "written" there once traced and
+    exported, or "traced" alone when it cannot be kept: no key that holds across
+    processes, no flatbuffers, a read-only cache).  The module takes the model's leaves
+    (a list), its structure fixed in it."""
     from cipcore.atomic import WriteError, write_bytes
 
     path = _export_path(jax, mx, args[0].shape[0], args[3].shape[1])
@@ -269,7 +271,6 @@ def _exported_chunk(jax: Any, mx: Any, args: tuple) -> tuple[Any, str]:
 
     shapes = [jax.ShapeDtypeStruct(np.shape(x), np.asarray(x).dtype) for x in leaves]
     exported = jax.export.export(jax.jit(flat))(shapes, *args)
-    # a read-only cache or no flatbuffers: traced again by the next process
     if path is None:
         return exported, "traced"
     with contextlib.suppress(ImportError, OSError, WriteError):
