@@ -232,3 +232,56 @@ def test_mujoco_engine_follows_the_reduced_one_at_first(tmp_path):
     tips = full["tip_position"][0]
     assert 0 < np.abs(tips[:, 0] - tips[:, 1]).max() < 1e-4
     assert not np.array_equal(full["tip_position"], red["tip_position"])
+
+
+def _recorder(tmp_path):
+    from validation.experiment import recording
+
+    s = TaskSettings(mode="single", duration=1.0)
+    header = make_header(s.as_dict(), "reduced", ["A"], [{"kind": "human"}], 1, "x", s.substeps)
+    return recording, Trial(s, make_task("reduced", s)), Recorder(tmp_path / "t", header)
+
+
+def test_a_slow_fsync_never_holds_the_frame_loop(tmp_path, monkeypatch):
+    """The once-a-second fsync runs on a thread of its own: a disk that takes 0.5 s per
+    fsync leaves every append (one 20 ms frame's write) fast; the end is still fsynced."""
+    import threading
+    import time
+
+    recording, trial, rec = _recorder(tmp_path)
+    real, synced = recording.os.fsync, []
+
+    def slow_fsync(fd):
+        time.sleep(0.5)
+        synced.append(threading.current_thread().name)
+        real(fd)
+
+    monkeypatch.setattr(recording.os, "fsync", slow_fsync)
+    monkeypatch.setattr(recording, "FSYNC_INTERVAL", 0.0)  # an fsync due at every frame
+    worst = 0.0
+    for _ in range(20):
+        t = time.perf_counter()
+        rec.append(trial.frame([100.0]))
+        worst = max(worst, time.perf_counter() - t)
+    assert worst < 0.1, f"an append waited {worst:.3f} s for the disk"
+    path = rec.finalize({"reason": "time"})
+    assert synced and synced[0].startswith("recording-fsync")  # off the loop's thread
+    assert synced[-1] == threading.current_thread().name  # the end record: fsynced here
+    assert load_trial(path).time.size == 20
+
+
+def test_an_fsync_error_on_the_thread_is_raised_by_the_next_sample(tmp_path, monkeypatch):
+    import errno
+    import time
+
+    recording, trial, rec = _recorder(tmp_path)
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(recording.os, "fsync", full)
+    monkeypatch.setattr(recording, "FSYNC_INTERVAL", 0.0)
+    rec.append(trial.frame([100.0]))  # starts the failing fsync
+    time.sleep(0.2)
+    with pytest.raises(OSError, match="No space left"):
+        rec.append(trial.frame([100.0]))
