@@ -6,22 +6,19 @@ another, the code unchanged.  A time measured there means little without this
 number beside it, so ``bench_run.py`` and ``bench_tests.py`` print it before and
 after what they time (``python benchmarks/hostspeed.py`` prints it alone).
 
-The probe: ``mujoco.rollout`` on one thread, MuJoCo's profiling timers off (as the
-engine steps), 64 realisations x 2000 steps of the single CIP at the paper's
-parameters, the best of three (about 0.5 s).  Compare times between runs by their
-ratio to it, never across probes that differ by more than a few per cent.
+The probe: ``bench_mujoco.engine``, i.e. ``mujoco.rollout`` on one thread with
+MuJoCo's profiling timers off (as the engine steps), 64 realisations x 2000 steps of
+the single CIP at the paper's parameters (beta 21.032), the best of three (about
+0.5 s).  Compare times between runs by their ratio to it, never across probes that
+differ by more than a few per cent.
 """
 
 from __future__ import annotations
 
 import os
-import time
 
-import mujoco
-import numpy as np
-from mujoco import rollout
+from bench_mujoco import engine
 
-from cip.mjtimer import timers_off
 from cip.model import CIPParams, build
 from cipcore.params import BalanceParams
 
@@ -30,20 +27,11 @@ REALIZATIONS, STEPS, REPEATS = 64, 2000, 3
 
 def us_per_step(realizations: int = REALIZATIONS, steps: int = STEPS,
                 repeats: int = REPEATS) -> float:  # fmt: skip
-    """Best-of-``repeats`` us per step of one-thread ``mujoco.rollout`` of the single CIP."""
+    """Best-of-``repeats`` us per step of one-thread ``mujoco.rollout`` of the single CIP,
+    timers off (``bench_mujoco.engine``: the pendulum tilted by 1 mrad, small random
+    controls)."""
     m = build("single", CIPParams.from_reduced(BalanceParams(beta=21.032)))
-    d = mujoco.MjData(m)
-    d.qpos[:] = 1e-3
-    s0 = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
-    mujoco.mj_getState(m, d, s0, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    init = np.tile(s0, (realizations, 1))
-    ctrl = np.zeros((realizations, steps, m.nu))
-    best = np.inf
-    with timers_off():
-        for _ in range(repeats):
-            t = time.perf_counter()
-            rollout.rollout(m, [d], init, ctrl)
-            best = min(best, time.perf_counter() - t)
+    best = min(engine(m, realizations, steps, 1, timers=False) for _ in range(repeats))
     return best / (realizations * steps) * 1e6
 
 

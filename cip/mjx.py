@@ -236,12 +236,13 @@ def _tree_key(tree: Any) -> str:
     return f"{_stable(kind)}[{_stable(aux)}]({', '.join(_tree_key(c) for c in tree.children())})"
 
 
-def _export_path(jax: Any, mx: Any, rows: int, steps: int) -> Path | None:
-    """The file of the exported chunk for this model structure, shape and software; None
-    when the structure has no description that holds across processes."""
+def _export_path(jax: Any, structure: tuple, rows: int, steps: int) -> Path | None:
+    """The file of the exported chunk for this model structure (:func:`_structure`),
+    shape and software; None when the structure has no description that holds across
+    processes."""
     import jaxlib
 
-    tree, leaves = _structure(mx)
+    tree, leaves = structure
     key = repr((_tree_key(tree), leaves, rows, steps, jax.__version__, jaxlib.__version__,
                 mujoco.__version__, bool(jax.config.jax_enable_x64)))  # fmt: skip
     if " at 0x" in key:  # an object known only by its address
@@ -249,28 +250,28 @@ def _export_path(jax: Any, mx: Any, rows: int, steps: int) -> Path | None:
     return export_dir() / f"chunk-{hashlib.sha256(key.encode()).hexdigest()[:24]}.jaxexport"
 
 
-def _exported_chunk(jax: Any, mx: Any, args: tuple) -> tuple[Any, str]:
-    """(the ``jax.export`` module of the chunk for ``mx`` and ``args``' shapes, where it
-    came from: "read" from :func:`export_dir`, else "written" there once traced and
-    exported, or "traced" alone when it cannot be kept: no key that holds across
-    processes, no flatbuffers, a read-only cache).  The module takes the model's leaves
-    (a list), its structure fixed in it."""
+def _exported_chunk(
+    jax: Any, mx: Any, path: Path | None, leaf_shapes: list, args: tuple
+) -> tuple[Any, str]:
+    """(the ``jax.export`` module of the chunk for ``mx``, its leaves' shapes and
+    ``args``' shapes, where it came from: "read" from ``path``, else "written" there once
+    traced and exported, or "traced" alone when it cannot be kept: no path (no key that
+    holds across processes), no flatbuffers, a read-only cache).  The module takes the
+    model's leaves (a list), its structure fixed in it."""
     from cipcore.atomic import WriteError, write_bytes
 
-    path = _export_path(jax, mx, args[0].shape[0], args[3].shape[1])
     # any failure to read it (no flatbuffers, which jax.export's serialisation needs and
     # the mjx extra installs; a damaged or foreign file) traces the chunk again
     with contextlib.suppress(Exception):
         if path is not None and path.is_file():
             return jax.export.deserialize(bytearray(path.read_bytes())), "read"
-    leaves, tree = jax.tree_util.tree_flatten(mx)
+    tree = jax.tree_util.tree_structure(mx)
     fn = _chunk_fn()
 
     def flat(leaves, qpos, qvel, warm, ctrl):
         return fn(jax.tree_util.tree_unflatten(tree, leaves), qpos, qvel, warm, ctrl)
 
-    shapes = [jax.ShapeDtypeStruct(np.shape(x), np.asarray(x).dtype) for x in leaves]
-    exported = jax.export.export(jax.jit(flat))(shapes, *args)
+    exported = jax.export.export(jax.jit(flat))(leaf_shapes, *args)
     if path is None:
         return exported, "traced"
     with contextlib.suppress(ImportError, OSError, WriteError):
@@ -306,9 +307,10 @@ def compiled_chunk(model: mujoco.MjModel, rows: int, steps: int):
     )
     t0 = time.perf_counter()
     try:
-        exported, source = _exported_chunk(jax, mx, args)
         leaves = [jax.ShapeDtypeStruct(np.shape(x), np.asarray(x).dtype)
                   for x in jax.tree_util.tree_leaves(mx)]  # fmt: skip
+        path = _export_path(jax, shape[0], rows, steps)
+        exported, source = _exported_chunk(jax, mx, path, leaves, args)
         executable = jax.jit(exported.call).lower(leaves, *args).compile()
     finally:
         seconds = time.perf_counter() - t0
