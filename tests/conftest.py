@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 
 import pytest
 
@@ -33,11 +34,24 @@ XDIST_GROUPS = {
 }
 
 
+#: engines whose import costs seconds in every process that runs one of their tests: a
+#: test naming one (in its file, its name or a parameter) not grouped above joins the
+#: engine's group, so one worker imports it.  MJX: JAX, and with it MJX's Warp backend
+#: wherever warp is installed (``mujoco.mjx`` imports ``warp`` and ``mujoco_warp`` when
+#: it can): 3 to 4 s per process, paid by both workers when the MJX tests were spread
+ENGINE_GROUPS = ("mjx",)
+
+
 def xdist_unit(nodeid: str) -> str:
-    """The work unit of a test: its group in :data:`XDIST_GROUPS`, else the test itself."""
+    """The work unit of a test: its group in :data:`XDIST_GROUPS`, else its engine's in
+    :data:`ENGINE_GROUPS`, else the test itself."""
     path, _, name = nodeid.partition("::")
     module = path.rsplit("/", 1)[-1]
-    return XDIST_GROUPS.get(f"{module}::{name.split('[')[0]}") or XDIST_GROUPS.get(module, nodeid)
+    group = XDIST_GROUPS.get(f"{module}::{name.split('[')[0]}") or XDIST_GROUPS.get(module)
+    if group:
+        return group
+    words = set(re.split(r"[^a-z0-9]+", f"{module} {name}".lower()))
+    return next((g for g in ENGINE_GROUPS if g in words), nodeid)
 
 
 #: the worker that runs the "realtime" group, first; the other workers run at a lower

@@ -299,6 +299,8 @@ def test_single_and_coupled_trials_in_the_browser(server, browser, shots):
 
 
 def test_end_rules_in_the_browser(server, browser):
+    """Out of range and the abort button, through the page (the closed page of a coupled
+    trial: the slow test below)."""
     url, out = server
     # out of range: the mouse sweeps the thin line off the screen
     p = _page(browser, url)
@@ -323,6 +325,12 @@ def test_end_rules_in_the_browser(server, browser):
     assert load_trial(_newest(out, "single_C")).attrs["end"]["detail"] == "C"
     p.context.close()
 
+
+@pytest.mark.slow
+def test_a_closed_page_ends_a_coupled_trial_for_its_partner_in_the_browser(server, browser):
+    """The third end rule through the page (the default run checks it at the server:
+    ``test_experiment_server.py``, a closed WebSocket of a human pair)."""
+    url, out = server
     # a closed page in a coupled trial: the partner sees "disconnect", data kept
     a = _page(browser, url)
     _create(a, "coupled", "D", 4, partner="E")
