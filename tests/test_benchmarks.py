@@ -1,5 +1,6 @@
 """The benchmark scripts' host-speed probe (``benchmarks/hostspeed.py``), printed beside
-every time the benchmarks measure: a positive, finite number in its documented line."""
+every time the benchmarks measure: a positive, finite number in its documented line; and
+the targets' script (``benchmarks/targets.py``): its rows and verdicts."""
 
 from __future__ import annotations
 
@@ -21,3 +22,37 @@ def test_hostspeed_prints_us_per_mujoco_step_and_the_load():
     )
     assert m, out.stdout
     assert 0.05 < float(m.group(1)) < 100.0
+
+
+def test_targets_prints_each_target_with_its_verdict_host_speed_and_load():
+    """``benchmarks/targets.py``, start-up only (the other parts take minutes): one row per
+    command with its target, "met" or "NOT MET" as the number says, and the exit status
+    1 exactly when a target is not met."""
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "targets.py"), "--repeat", "1",
+         "--skip", "smoke,quick,pytest,mjx,drake"],
+        capture_output=True, text=True, check=False, timeout=120,
+    )  # fmt: skip
+    rows = re.findall(
+        r"^(cip-validate --version|cip-validate --help|python -c pass) +(\d+\.\d{3}) s "
+        r"\(median of 1\) +(< 0\.[57] s)? +(met|NOT MET|n/a) +host (\d+\.\d{3}) us, load ",
+        out.stdout,
+        re.M,
+    )
+    assert [r[0] for r in rows] == ["python -c pass", "cip-validate --version",
+                                    "cip-validate --help"], out.stdout  # fmt: skip
+    for _name, seconds, target, verdict, host in rows:
+        assert 0 < float(seconds) < 60 and 0.05 < float(host) < 100
+        if target:
+            assert verdict == ("met" if float(seconds) < float(target[2:-2]) else "NOT MET")
+        else:
+            assert verdict == "n/a"
+    assert out.returncode == (1 if any(r[3] == "NOT MET" for r in rows) else 0), out.stderr
+
+
+def test_targets_refuses_an_unknown_part_in_one_line():
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "targets.py"), "--skip", "smok"],
+        capture_output=True, text=True, check=False, timeout=60,
+    )  # fmt: skip
+    assert out.returncode == 2 and "--skip: unknown part(s) ['smok']" in out.stderr
