@@ -4,6 +4,7 @@ the targets' script (``benchmarks/targets.py``): its rows and verdicts."""
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -17,11 +18,13 @@ def test_hostspeed_prints_us_per_mujoco_step_and_the_load():
                          capture_output=True, text=True, check=True, timeout=120)  # fmt: skip
     m = re.fullmatch(
         r"host: (\d+\.\d{3}) us per MuJoCo step \(single CIP, one thread\), "
+        r"(\d+\.\d{3}) us with every core stepping \((\d+)\), "
         r"load (\d+\.\d\d) (\d+\.\d\d) (\d+\.\d\d)\n",
         out.stdout,
     )
     assert m, out.stdout
-    assert 0.05 < float(m.group(1)) < 100.0
+    assert 0.05 < float(m.group(1)) < 100.0 and 0.05 < float(m.group(2)) < 100.0
+    assert int(m.group(3)) == os.cpu_count()
 
 
 def test_targets_prints_each_target_with_its_verdict_host_speed_and_load():
@@ -35,7 +38,8 @@ def test_targets_prints_each_target_with_its_verdict_host_speed_and_load():
     )  # fmt: skip
     rows = re.findall(
         r"^(cip-validate --version|cip-validate --help|python -c pass) +(\d+\.\d{3}) s "
-        r"\(median of 1\) +(< 0\.[57] s)? +(met|NOT MET|n/a) +host (\d+\.\d{3}) us, load ",
+        r"\(median of 1\) +(< 0\.[57] s)? +(met|NOT MET|n/a) +host (\d+\.\d{3})/\d+\.\d{3} us, "
+        r"load ",
         out.stdout,
         re.M,
     )
