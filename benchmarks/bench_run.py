@@ -33,10 +33,6 @@ from pathlib import Path
 import hostspeed
 
 
-def _load() -> str:
-    return " ".join(f"{v:.2f}" for v in os.getloadavg())
-
-
 def _children_cpu() -> float:
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
     return ru.ru_utime + ru.ru_stime
@@ -49,7 +45,7 @@ def time_run(profile: str, seed: int, figures: bool, extra: list[str]) -> dict:
                "--seed", str(seed), "--out", tmp, "--quiet", *extra]  # fmt: skip
         if not figures:
             cmd.append("--no-figures")
-        load_before = _load()
+        load_before = hostspeed.load()
         c0, t0 = _children_cpu(), time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
@@ -59,7 +55,7 @@ def time_run(profile: str, seed: int, figures: bool, extra: list[str]) -> dict:
         "profile": profile, "seed": seed, "figures": figures, "exit": proc.returncode,
         "wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "elapsed_s": res.get("elapsed_s"),
         "stages_wall_s": res.get("timings_s", {}), "stages_cpu_s": res.get("cpu_s", {}),
-        "counts": res.get("counts"), "load_before": load_before, "load_after": _load(),
+        "counts": res.get("counts"), "load_before": load_before, "load_after": hostspeed.load(),
         "stderr_tail": proc.stderr.strip().splitlines()[-3:] if proc.returncode else [],
         "regression": [ln for ln in proc.stdout.splitlines() if ln.startswith("regression vs")],
     }  # fmt: skip

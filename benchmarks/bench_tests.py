@@ -27,10 +27,6 @@ from pathlib import Path
 import hostspeed
 
 
-def _load() -> str:
-    return " ".join(f"{v:.2f}" for v in os.getloadavg())
-
-
 def _children_cpu() -> float:
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
     return ru.ru_utime + ru.ru_stime
@@ -40,7 +36,7 @@ def time_pytest(extra: list[str]) -> dict:
     """One pytest run in a fresh process: exit status, summary, wall, CPU, load."""
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *extra]
     root = Path(__file__).resolve().parent.parent
-    load_before = _load()
+    load_before = hostspeed.load()
     c0, t0 = _children_cpu(), time.perf_counter()
     proc = subprocess.run(cmd, cwd=root, capture_output=True, text=True, check=False)
     wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
@@ -49,7 +45,7 @@ def time_pytest(extra: list[str]) -> dict:
         "command": " ".join(["pytest", *extra]), "exit": proc.returncode,
         "summary": lines[-1].strip("= ") if lines else "", "wall_s": round(wall, 1),
         "cpu_s": round(cpu, 1), "cores": os.cpu_count(), "load_before": load_before,
-        "load_after": _load(), "output_tail": lines[-40:] if proc.returncode else [],
+        "load_after": hostspeed.load(), "output_tail": lines[-40:] if proc.returncode else [],
     }  # fmt: skip
 
 

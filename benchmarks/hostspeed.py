@@ -55,13 +55,18 @@ def us_per_step_all_cores(processes: int | None = None) -> float:
         return max(pool.map(_probe, range(n)))
 
 
+def load() -> str:
+    """The load average now, as ``0.12 0.34 0.56`` (1, 5 and 15 minutes)."""
+    return " ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
 def line() -> str:
     """``host: 1.234 us per MuJoCo step (single CIP, one thread), 1.345 us with every core
     stepping (2), load 0.12 0.34 0.56``."""
-    load = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    now = load()
     one, every = us_per_step(), us_per_step_all_cores()
     return (f"host: {one:.3f} us per MuJoCo step (single CIP, one thread), {every:.3f} us "
-            f"with every core stepping ({os.cpu_count()}), load {load}")  # fmt: skip
+            f"with every core stepping ({os.cpu_count()}), load {now}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -11,14 +11,14 @@ run (the default profile) under 45 s, figures included; the README's test comman
 Each line is one measurement, in this order (each in a fresh process, as a user runs
 it): the start-up commands (median of ``--repeat`` runs, beside ``python -c pass``),
 the smoke run twice (the first loads numba's cached kernels and Python's bytecode
-from disk; on a fresh install it compiles them, which the line says when it is the
-slower), the quick run, ``pytest``, then MJX and Drake in child processes of their
-own.  Before each, ``hostspeed`` measures the host (us per single-CIP MuJoCo step on
-one thread / on every core at once, the slowest core's: the same machine moved
-between 1.07 and 1.9 us in one day; compare times only between runs whose host
-speeds agree) and the line shows that and the load average.
-The summary says "met" or "not met" per target; nothing is retried or averaged
-away.
+from disk, or on a fresh install compiles them: compare the two lines), the quick
+run, ``pytest``, then MJX and Drake in child processes of their own.  Before each,
+``hostspeed`` measures the host (us per single-CIP MuJoCo step on one thread / on
+every core at once, the slowest core's: the same machine moved between 1.07 and
+1.9 us in one day; compare times only between runs whose host speeds agree) and the
+line shows that and the load average.  Each row says "met" or "NOT MET" against its
+target; nothing is retried or averaged away (Drake's ratio is the best of alternated
+rounds, see :data:`DRAKE_CHILD`).
 
 Usage:  python benchmarks/targets.py [--skip pytest,quick,...] [--json FILE]
 """
@@ -86,10 +86,6 @@ print(json.dumps({t: r * round(duration / p.dt) / s for t, s in best.items()}))
 """
 
 
-def _load() -> str:
-    return " ".join(f"{v:.2f}" for v in os.getloadavg())
-
-
 def _host() -> str:
     """The host's speed now: us per MuJoCo step on one thread / on every core at once."""
     return f"{hostspeed.us_per_step():.3f}/{hostspeed.us_per_step_all_cores():.3f}"
@@ -131,7 +127,8 @@ def main() -> int:
         ap.error(f"--skip: unknown part(s) {sorted(skip - set(PARTS))}; allowed: {PARTS}")
     try:
         n, seconds, rounds = a.drake.split(",")
-        ok = int(n) >= 1 and float(seconds) >= 0.1 and int(rounds) >= 1
+        drake = (int(n), float(seconds), int(rounds))
+        ok = drake[0] >= 1 and drake[1] >= 0.1 and drake[2] >= 1
     except ValueError:
         ok = False
     if not ok:
@@ -144,20 +141,19 @@ def main() -> int:
     rows: list[dict] = []
 
     if "startup" not in skip:
-        med = {}
-        host, load = _host(), _load()  # once for the three (a few seconds in all)
+        host, load = _host(), hostspeed.load()  # once for the three (a few seconds in all)
         for label, cmd in startup.CASES[:3]:
-            med[label] = statistics.median(startup.wall_times(cmd, a.repeat))
+            median = statistics.median(startup.wall_times(cmd, a.repeat))
             target = {"cip-validate --version": 0.5, "cip-validate --help": 0.7}.get(label)
-            _row(rows, label, f"{med[label]:.3f} s (median of {a.repeat})",
+            _row(rows, label, f"{median:.3f} s (median of {a.repeat})",
                  f"< {target} s" if target else "", None if target is None else
-                 med[label] < target, host, load)  # fmt: skip
+                 median < target, host, load)  # fmt: skip
 
     for profile, target, times in (("smoke", 8.0, 2), ("quick", 45.0, 1)):
         if profile in skip:
             continue
         for k in range(times):
-            host, load = _host(), _load()
+            host, load = _host(), hostspeed.load()
             r = bench_run.time_run(profile, a.seed, True, [])
             what = f"run --profile {profile} (figures)" + (f", run {k + 1}" if times > 1 else "")
             value = (f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.0f} s CPU, exit {r['exit']}, "
@@ -166,7 +162,7 @@ def main() -> int:
                  r["exit"] == 0 and r["wall_s"] < target, host, load)  # fmt: skip
 
     if "pytest" not in skip:
-        host, load = _host(), _load()
+        host, load = _host(), hostspeed.load()
         r = bench_tests.time_pytest([])
         _row(rows, "pytest (the README's command)",
              f"{r['wall_s']:.1f} s wall, {r['cpu_s']:.0f} s CPU, exit {r['exit']}", "< 120 s",
@@ -174,7 +170,7 @@ def main() -> int:
         print(f"  {r['summary']}")
 
     if "mjx" not in skip:
-        host, load = _host(), _load()
+        host, load = _host(), hostspeed.load()
         m = _child(MJX_CHILD)
         if "skipped" in m or "error" in m:
             _row(rows, "MJX: second batch size", m.get("skipped") or m["error"], "0 new",
@@ -188,19 +184,19 @@ def main() -> int:
                  f"second {m['4']['seconds']:.2f} s", "0 new", new == 0, host, load)  # fmt: skip
 
     if "drake" not in skip:
-        host, load = _host(), _load()
-        r, duration, rounds = a.drake.split(",")
-        d = _child(DRAKE_CHILD, r, duration, rounds)
+        host, load = _host(), hostspeed.load()
+        r, duration, rounds = drake
+        d = _child(DRAKE_CHILD, str(r), str(duration), str(rounds))
         if "skipped" in d or "error" in d:
             _row(rows, "Drake: 2 processes / 1", d.get("skipped") or d["error"], ">= 1.7x",
                  None, host, load)  # fmt: skip
         else:
             ratio = d["2"] / d["1"]
-            _row(rows, f"Drake: 2 processes / 1 ({r} x {duration} s, best of {rounds})",
+            _row(rows, f"Drake: 2 processes / 1 ({r} x {duration:g} s, best of {rounds})",
                  f"{ratio:.2f}x ({d['1']:.3g} -> {d['2']:.3g} steps/s)", ">= 1.7x",
                  ratio >= 1.7, host, load)  # fmt: skip
 
-    print(f"after: host {_host()} us per step, load {_load()}")
+    print(f"after: host {_host()} us per step, load {hostspeed.load()}")
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1) + "\n")
     return 0 if all(r["verdict"] != "NOT MET" for r in rows) else 1
