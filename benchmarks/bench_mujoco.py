@@ -7,17 +7,20 @@ In one run, for the coupled CIP (default 128 realisations, paper parameters):
     noise, recording of balancing errors);
 each with 1 thread and with all threads.  Prints steps/s and the ratios: ours
 against the engine as a plain Python program runs it (MuJoCo's profiling timers on,
-as the bindings install them) and against the engine with the timers off, as ours
-steps (:mod:`cip.mjtimer`), which isolates our own overhead.
+as the bindings install them) and against the engine as ours steps it, with the
+timers off (:mod:`cip.mjtimer`) and the constraint stages the model cannot use off
+(:mod:`cip.mjstages`) and its sensors off, which isolates our own overhead.
 ``--timers`` instead prints the cost of the timers alone: us per step of
 ``mujoco.rollout`` on one thread, single and coupled CIP, timers on and off, and
-whether the states are bit-identical.
-Usage:  python benchmarks/bench_mujoco.py [--realizations 128] [--duration 2] [--timers]
+whether the states are bit-identical; ``--stages`` the same for the unused stages
+(timers off in both).
+Usage:  python benchmarks/bench_mujoco.py [--realizations 128] [--duration 2] [--timers | --stages]
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import time
 
@@ -25,6 +28,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from cip.mjstages import unused_stage_flags
 from cip.mjtimer import timers_off
 from cip.model import CIPParams, build
 from cip.simulate import simulate_full
@@ -55,6 +59,39 @@ def _engine(
         t = time.perf_counter()
         state, _ = rollout.rollout(m, datas, init, ctrl)
         return time.perf_counter() - t, state
+
+
+def as_the_runner_steps(m: mujoco.MjModel, unused: bool = True) -> mujoco.MjModel:
+    """A copy of ``m`` as :class:`cip.runner.MujocoRollout` steps it: sensors off and, with
+    ``unused``, the constraint stages it cannot use off (:mod:`cip.mjstages`)."""
+    m = copy.copy(m)
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
+    if unused:
+        m.opt.disableflags |= unused_stage_flags(m)
+    return m
+
+
+def stage_cost(p: BalanceParams, nreal: int, nstep: int, repeats: int) -> None:
+    """us/step of one-thread rollouts (timers off) with and without the unused stages."""
+    print(f"constraint stages the model cannot use (cip.mjstages), mujoco.rollout on 1 "
+          f"thread, timers and sensors off, {nreal} x {nstep} steps, median of {repeats} "
+          "alternated")  # fmt: skip
+    for model in ("single", "coupled"):
+        m = build(model, CIPParams.from_reduced(p))
+        variants = {"every stage": as_the_runner_steps(m, unused=False),
+                    "unused off": as_the_runner_steps(m)}  # fmt: skip
+        runs: dict[str, list] = {k: [] for k in variants}
+        states = {}
+        for _ in range(repeats):  # interleaved, so that load changes hit both alike
+            for k, mk in variants.items():
+                t, states[k] = _engine(mk, nreal, nstep, 1, False)
+                runs[k].append(t / (nreal * nstep) * 1e6)
+        us = {k: float(np.median(v)) for k, v in runs.items()}
+        same = np.array_equal(states["every stage"], states["unused off"])
+        flags = mujoco.mjtDisableBit(unused_stage_flags(m)).name if unused_stage_flags(m) else "-"
+        print(f"  {model:8s} {flags:18s} every stage {us['every stage']:6.3f} us/step   unused off "
+              f"{us['unused off']:6.3f} us/step   ratio {us['unused off'] / us['every stage']:.2f}"
+              f"   states bit-identical: {same}")  # fmt: skip
 
 
 def timer_cost(p: BalanceParams, nreal: int, nstep: int, repeats: int) -> None:
@@ -88,13 +125,17 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=2.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--timers", action="store_true", help="the cost of MuJoCo's timers alone")
+    ap.add_argument("--stages", action="store_true",
+                    help="the cost of the constraint stages the models cannot use")  # fmt: skip
     a = ap.parse_args()
     p = BalanceParams(beta=21.032)
-    if a.timers:
+    if a.timers or a.stages:
         print(f"mujoco {mujoco.__version__}; load average {os.getloadavg()}")
-        timer_cost(p, a.realizations, round(a.duration / p.dt), a.repeats)
+        cost = timer_cost if a.timers else stage_cost
+        cost(p, a.realizations, round(a.duration / p.dt), a.repeats)
         return
     m = build("coupled", CIPParams.from_reduced(p))
+    lean = as_the_runner_steps(m)
     nstep = round(a.duration / p.dt)
     total = nstep * a.realizations
     ncpu = os.cpu_count() or 1
@@ -104,14 +145,14 @@ def main() -> None:
     rate = {}
     for threads in sorted({1, ncpu}):
         e = min(engine(m, a.realizations, nstep, threads) for _ in range(a.repeats))
-        eo = min(engine(m, a.realizations, nstep, threads, False) for _ in range(a.repeats))
+        eo = min(engine(lean, a.realizations, nstep, threads, False) for _ in range(a.repeats))
         o = min(ours(p, a.realizations, a.duration, threads) for _ in range(a.repeats))
         rate[threads] = (total / e, total / o)
         print(
             f"  threads={threads}: engine rollout {total / e / 1e3:8.1f} k steps/s "
-            f"(timers off {total / eo / 1e3:8.1f})   "
+            f"(as ours steps it {total / eo / 1e3:8.1f})   "
             f"delayed random gain {total / o / 1e3:8.1f} k steps/s   "
-            f"ratio {e / o:.2f} (against timers off {eo / o:.2f})"
+            f"ratio {e / o:.2f} (against the engine as ours steps it {eo / o:.2f})"
         )
     if ncpu > 1:
         se = rate[ncpu][0] / rate[1][0]

@@ -31,6 +31,7 @@ from cipcore.control_law import delayed_random_gain
 from cipcore.models import get_model
 from cipcore.params import BalanceParams, ParameterError
 
+from .mjstages import unused_stage_flags
 from .mjtimer import timers_off
 from .model import CIPParams, build
 from .names import cart_joint, hinge_joint, motor
@@ -79,12 +80,19 @@ class MujocoRollout:
     The runner reads states only, so the rollout steps a copy of the model with its
     sensor stage disabled (sensors are outputs: the states are the same bit for bit;
     about 5-10 % of a coupled step), and with MuJoCo's profiling timers off
-    (:mod:`cip.mjtimer`: outputs too; a sixth of a coupled step, a third of a single).
+    (:mod:`cip.mjtimer`: outputs too; a sixth of a coupled step, a third of a single),
+    and without the constraint stages the model cannot use (:mod:`cip.mjstages`: the
+    same states bit for bit; 0.82 of a single step's time, 0.87 of a coupled one's).
     """
 
+    #: switch off the pipeline stages the model cannot use (:mod:`cip.mjstages`)
+    skip_unused_stages = True
+
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        model = copy.copy(model)  # the caller's model keeps its sensors
+        model = copy.copy(model)  # the caller's model keeps its sensors and its flags
         model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
+        if self.skip_unused_stages:
+            model.opt.disableflags |= unused_stage_flags(model)
         self.models = [model] * n_realizations
         self.datas = [mujoco.MjData(model) for _ in range(threads)]
         self._sens: np.ndarray | None = None

@@ -1,0 +1,76 @@
+"""The constraint stages a model cannot use, off while cipval steps it (cip.mjstages)."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from cip.lyapunov import lyapunov_full
+from cip.mjstages import unused_stage_flags
+from cip.model import CIPParams, build
+from cip.runner import MujocoRollout
+from cip.simulate import simulate_full
+from cipcore.params import BalanceParams
+
+D = mujoco.mjtDisableBit
+FIELDS = ("balancing_error", "tip_velocity", "base_velocity", "angle")
+
+
+class EveryStage(MujocoRollout):
+    """MuJoCo's whole pipeline, as the model file asks."""
+
+    skip_unused_stages = False
+
+
+def test_each_shipped_model_loses_only_the_stage_it_cannot_use():
+    single = build("single", CIPParams())
+    coupled = build("coupled", CIPParams())
+    assert unused_stage_flags(single) == D.mjDSBL_CONSTRAINT  # no constraint at all
+    assert unused_stage_flags(coupled) == D.mjDSBL_ISLAND  # the rod: one island, every dof
+    assert single.opt.disableflags & D.mjDSBL_CONSTRAINT == 0  # the model is not edited
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda m: m.jnt_limited.__setitem__(0, 1),  # a joint limit: rows come and go
+        lambda m: m.dof_frictionloss.__setitem__(0, 0.1),  # friction loss
+        lambda m: setattr(m.opt, "disableflags", m.opt.disableflags & ~int(D.mjDSBL_CONTACT)),
+    ],
+    ids=["limit", "frictionloss", "contacts"],
+)
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_state_dependent_constraints_keep_every_stage(model, edit):
+    m = build(model, CIPParams())
+    edit(m)
+    assert unused_stage_flags(m) == 0
+
+
+def test_a_rod_switched_off_keeps_every_stage():
+    """The equality disabled (the rod-removed fault): no island, nothing to skip, and the
+    constraint stage stays (the model has an equality)."""
+    m = build("coupled", CIPParams())
+    m.opt.disableflags |= D.mjDSBL_EQUALITY
+    assert unused_stage_flags(m) == 0
+
+
+@pytest.mark.parametrize("amplitude", [1e-3, 0.1])
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_states_are_bit_identical_with_every_stage(model, amplitude):
+    """The delayed random-gain controller, 4 realisations x 3 s, inside and beyond the
+    small-angle regime: every recorded field the same bit for bit."""
+    p = BalanceParams(beta=21.032)
+    kw = {"amplitude": amplitude, "fields": FIELDS, "threads": 2}
+    skipped = simulate_full(model, p, 3.0, 4, 11, **kw)
+    every = simulate_full(model, p, 3.0, 4, 11, backend=EveryStage, **kw)
+    for f in FIELDS:
+        np.testing.assert_array_equal(skipped[f], every[f], err_msg=f)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_lambda1_is_bit_identical_with_every_stage(model):
+    p = BalanceParams(beta=21.5)
+    a = lyapunov_full(model, p, 5.0, 2, seed=4)
+    b = lyapunov_full(model, p, 5.0, 2, seed=4, backend=EveryStage)
+    np.testing.assert_array_equal(a.per_realization, b.per_realization)
