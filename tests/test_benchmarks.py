@@ -11,11 +11,14 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+#: the probe at 50 steps per realisation instead of 2000: these tests check the lines' form
+SMALL_PROBE = {**os.environ, "CIPVAL_HOSTSPEED_STEPS": "50"}
 
 
 def test_hostspeed_prints_us_per_mujoco_step_and_the_load():
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hostspeed.py")],
-                         capture_output=True, text=True, check=True, timeout=120)  # fmt: skip
+                         capture_output=True, text=True, check=True, timeout=120,
+                         env=SMALL_PROBE)  # fmt: skip
     m = re.fullmatch(
         r"host: (\d+\.\d{3}) us per MuJoCo step \(single CIP, one thread\), "
         r"(\d+\.\d{3}) us with every core stepping \((\d+)\), "
@@ -27,6 +30,14 @@ def test_hostspeed_prints_us_per_mujoco_step_and_the_load():
     assert int(m.group(3)) == os.cpu_count()
 
 
+def test_hostspeed_refuses_a_bad_probe_size_in_one_line():
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "hostspeed.py")],
+                         capture_output=True, text=True, check=False, timeout=60,
+                         env={**os.environ, "CIPVAL_HOSTSPEED_STEPS": "0"})  # fmt: skip
+    assert out.returncode == 1
+    assert out.stderr.strip() == "CIPVAL_HOSTSPEED_STEPS must be a positive integer, got '0'"
+
+
 def test_targets_prints_each_target_with_its_verdict_host_speed_and_load():
     """``benchmarks/targets.py``, start-up only (the other parts take minutes): one row per
     command with its target, "met" or "NOT MET" as the number says, and the exit status
@@ -34,7 +45,7 @@ def test_targets_prints_each_target_with_its_verdict_host_speed_and_load():
     out = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "targets.py"), "--repeat", "1",
          "--skip", "smoke,quick,pytest,mjx,drake"],
-        capture_output=True, text=True, check=False, timeout=120,
+        capture_output=True, text=True, check=False, timeout=120, env=SMALL_PROBE,
     )  # fmt: skip
     rows = re.findall(
         r"^(cip-validate --version|cip-validate --help|python -c pass) +(\d+\.\d{3}) s "
