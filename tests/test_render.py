@@ -95,3 +95,37 @@ def test_clip_overlay_names_time_angles_errors_engine_and_regime():
     box = drawn[:100, :300].astype(int)
     assert (np.abs(box - 200) > 50).mean() > 0.2  # a dark box with text on it
     assert np.array_equal(drawn[300:], frame[300:])  # the scene below is untouched
+
+
+def _whole_frame_overlay(frame, lines, regime):
+    """The overlay composited over the whole frame (the reference for the region-only one)."""
+    from PIL import Image, ImageDraw
+
+    from validation.animation import REGIME_COLOURS, _overlay_font
+
+    img = Image.fromarray(frame).convert("RGBA")
+    size = max(9, round(frame.shape[0] / 26))
+    font = _overlay_font(size)
+    layer = Image.new("RGBA", img.size, (0, 0, 0, 0))
+    draw = ImageDraw.Draw(layer)
+    pad, step = 6, round(size * 1.3)
+    width = max(draw.textlength(t, font=font) for t in lines)
+    draw.rectangle((0, 0, width + 2 * pad, pad * 2 + step * len(lines)), fill=(0, 0, 0, 150))
+    for j, t in enumerate(lines):
+        colour = REGIME_COLOURS[regime] if j == len(lines) - 1 else (255, 255, 255)
+        draw.text((pad, pad + j * step), t, font=font, fill=(*colour, 255))
+    return np.asarray(Image.alpha_composite(img, layer).convert("RGB"))
+
+
+@pytest.mark.parametrize("shape", [(400, 640), (120, 160), (30, 40)])
+def test_overlay_over_its_region_equals_the_whole_frame_composite(shape):
+    """Descenders, a last line wider than the others, text running off a small frame:
+    the same pixels as compositing the whole frame, every other pixel untouched."""
+    from validation.animation import draw_overlay
+
+    frame = np.random.default_rng(5).integers(0, 256, (*shape, 3), dtype=np.uint8)
+    lines = ["t =  12.35 s      engine mujoco, coupled model", "gjpqy |theta| (rad)",
+             "OUTSIDE the small-angle regime (|theta| > 0.0822 rad)"]  # fmt: skip
+    for regime in ("inside", "outside", "fallen"):
+        np.testing.assert_array_equal(draw_overlay(frame, lines, regime),
+                                      _whole_frame_overlay(frame, lines, regime))  # fmt: skip
