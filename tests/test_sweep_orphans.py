@@ -31,7 +31,7 @@ def session_processes(sid: int) -> dict[int, int]:
 
 def kill_and_count(cmd: list[str], ready, tmp_path: Path) -> tuple[int, dict]:
     """Start ``cmd`` in a new session, wait until ``ready(procs)``, kill -9 its leader,
-    and return (processes when killed, processes left 5 s later)."""
+    and return (processes when killed, processes left once none is, or 5 s later)."""
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
     log = open(tmp_path / "log.txt", "w")
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=log, stderr=log, env=env)
@@ -44,7 +44,9 @@ def kill_and_count(cmd: list[str], ready, tmp_path: Path) -> tuple[int, dict]:
         before = len(session_processes(proc.pid))
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
-        time.sleep(5.0)
+        gone_by = time.monotonic() + 5.0  # orphans poll for their parent every second
+        while session_processes(proc.pid) and time.monotonic() < gone_by:
+            time.sleep(0.1)
         return before, session_processes(proc.pid)
     finally:
         for pid in session_processes(proc.pid):
