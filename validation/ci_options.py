@@ -44,12 +44,17 @@ def add_ci_options(p: argparse.ArgumentParser, verbose: bool = True) -> None:
         )
 
 
-def run_environment() -> dict:
-    """``versions``, ``platform`` and the numerics ``fingerprint`` for a JSON output."""
+def run_environment(model_files: dict[str, str] | None = None) -> dict:
+    """``versions``, ``platform`` and the numerics ``fingerprint`` (with the digests of
+    ``model_files``, the ``--mjcf`` files, else of the shipped models) for a JSON output.
+
+    Fixed for the life of a process but for the files' digests; reading the package
+    metadata, CPU flags and BLAS kernels takes about 25 ms, so a run computes it once
+    (its results file is rewritten after every stage)."""
     import platform
 
     from .fingerprint import numerics_fingerprint
     from .versions import package_versions
 
     return {"versions": package_versions(), "platform": platform.platform(),
-            "fingerprint": numerics_fingerprint()}  # fmt: skip
+            "fingerprint": numerics_fingerprint(model_files)}  # fmt: skip

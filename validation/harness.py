@@ -42,7 +42,6 @@ import hashlib
 import json
 import os
 import pickle
-import platform
 import sys
 import tempfile
 import time
@@ -59,7 +58,7 @@ from cipcore.params import BalanceParams, ParameterError
 
 from . import agreement, paper
 from .checklog import with_limit
-from .fingerprint import numerics_fingerprint
+from .ci_options import run_environment
 from .profiles import PAPER_BETA, Profile
 from .report import write_json
 from .stats import FAIL, INCONCLUSIVE, PASS
@@ -281,6 +280,9 @@ def run_validation(
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     store = _Stages(out_dir, _run_key(profile, figures, model_files, engine, integrator), resume)
+    # what the numbers are computed with, recorded in every (partial) results file: read once
+    environment = run_environment(model_files)
+    engine_record: dict[str, Any] | None = None  # read with the first stage's results
     file_inputs = model_file_inputs(model_files)
     target = {"files": model_files, "engine": engine, "integrator": integrator}
     bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
@@ -364,8 +366,9 @@ def run_validation(
                 drawing = worker
                 _send_figure_job(drawing, out_dir, "rod", {"rod_ds": state[name][2]})
             bar.update(1)
-            partial = _results(profile, state, timings, workers, t0, model_files)
-            partial.update(engine=_engine_record(engine, integrator, model_files))
+            partial = _results(profile, state, timings, workers, t0, model_files, environment)
+            engine_record = engine_record or _engine_record(engine, integrator, model_files)
+            partial.update(engine=engine_record)
             partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
             write_json(partial, out_dir / "results.json")
             if on_stage:
@@ -379,7 +382,8 @@ def run_validation(
     except Exception as exc:  # the engine crashed inside a stage: keep what finished
         bar.close()
         _write_crash(out_dir, name, exc, _results(profile, state, timings, workers, t0,
-                                                  model_files), done, reused)  # fmt: skip
+                                                  model_files, environment),
+                     done, reused)  # fmt: skip
         raise StageCrashed(name, f"{type(exc).__name__}: {exc}", list(done), out_dir) from exc
     except BaseException:
         bar.close()  # an error message then starts on its own line
@@ -389,8 +393,8 @@ def run_validation(
         stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
         stop_paper_figures(drawing or worker)
     bar.close()
-    results = _results(profile, state, timings, workers, t0, model_files)
-    results.update(engine=_engine_record(engine, integrator, model_files))
+    results = _results(profile, state, timings, workers, t0, model_files, environment)
+    results.update(engine=engine_record or _engine_record(engine, integrator, model_files))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     results.update(cpu_s=dict(cpu))
     return results
@@ -722,8 +726,11 @@ def _results(
     workers: int | None,
     t0: float,
     model_files: dict[str, str] | None = None,
+    environment: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """The results dictionary from the stages finished so far (in stage order)."""
+    """The results dictionary from the stages finished so far (in stage order);
+    ``environment``: :func:`validation.ci_options.run_environment` of the run, computed
+    here where not given."""
     checks, paper_rows = [], []
     scan_rows, rod_rows, figure_files = [], [], []
     robust, nonlinear = None, None
@@ -768,9 +775,7 @@ def _results(
         "rod_length": rod_rows,
         "figures": [str(Path(p).name) for p in figure_files],
         "divergence": divergence,
-        "versions": package_versions(),
-        "platform": platform.platform(),
-        "fingerprint": numerics_fingerprint(model_files),
+        **(environment or run_environment(model_files)),  # versions, platform, fingerprint
         "model_files": {k: str(v) for k, v in (model_files or {}).items()},
         "workers": workers,
         "timings_s": dict(timings),
