@@ -88,7 +88,8 @@ def stage_cost(p: BalanceParams, nreal: int, nstep: int, repeats: int) -> None:
                 runs[k].append(t / (nreal * nstep) * 1e6)
         us = {k: float(np.median(v)) for k, v in runs.items()}
         same = np.array_equal(states["every stage"], states["unused off"])
-        flags = mujoco.mjtDisableBit(unused_stage_flags(m)).name if unused_stage_flags(m) else "-"
+        unused = unused_stage_flags(m)
+        flags = mujoco.mjtDisableBit(unused).name if unused else "-"
         print(f"  {model:8s} {flags:18s} every stage {us['every stage']:6.3f} us/step   unused off "
               f"{us['unused off']:6.3f} us/step   ratio {us['unused off'] / us['every stage']:.2f}"
               f"   states bit-identical: {same}")  # fmt: skip

@@ -55,14 +55,12 @@ def unused_stage_flags(m: mujoco.MjModel) -> int:
     its constraints are equalities only, forming one island over every degree of
     freedom (``nisland == 1`` and ``nidof == nv`` after ``mj_forward``).
     """
-    flags = 0
     if m.opt.disableflags & _DSBL.mjDSBL_CONSTRAINT or _state_dependent_constraints(m):
-        return flags
+        return 0
     if m.neq == 0:
-        return flags | _DSBL.mjDSBL_CONSTRAINT
-    if not m.opt.disableflags & _DSBL.mjDSBL_ISLAND:
-        d = mujoco.MjData(m)
-        mujoco.mj_forward(m, d)
-        if d.nisland == 1 and d.nidof == m.nv:
-            flags |= _DSBL.mjDSBL_ISLAND
-    return flags
+        return int(_DSBL.mjDSBL_CONSTRAINT)
+    if m.opt.disableflags & _DSBL.mjDSBL_ISLAND:
+        return 0
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    return int(_DSBL.mjDSBL_ISLAND) if d.nisland == 1 and d.nidof == m.nv else 0

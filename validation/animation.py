@@ -158,8 +158,9 @@ def draw_overlay(frame: np.ndarray, lines: list[str], regime: str) -> np.ndarray
     box = (0, 0, width + 2 * pad, pad * 2 + step * len(lines))
     tops = [pad + j * step for j in range(len(lines))]
     # the region from the top-left corner that the box and every line's glyphs touch
-    right = max([box[2]] + [font.getbbox(t)[2] + pad for t in lines])
-    bottom = max([box[3]] + [font.getbbox(t)[3] + y for t, y in zip(lines, tops, strict=True)])
+    glyphs = [font.getbbox(t) for t in lines]
+    right = max([box[2]] + [g[2] + pad for g in glyphs])
+    bottom = max([box[3]] + [g[3] + y for g, y in zip(glyphs, tops, strict=True)])
     h, w = frame.shape[:2]
     region = (0, 0, min(w, int(np.ceil(right)) + 1), min(h, int(np.ceil(bottom)) + 1))
     img = Image.fromarray(frame)

@@ -350,6 +350,19 @@ def _window_comoment(
 _STCC_THREADED = 100_000
 
 
+def _each(task, n: int, threaded: bool = True) -> None:
+    """``task(i)`` for i = 0 .. n-1, across up to one thread per core when ``threaded``
+    (the tasks write disjoint outputs, so the result does not depend on the threads),
+    else in this thread."""
+    threads = min(os.cpu_count() or 1, n) if threaded else 1
+    if threads > 1:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(task, range(n)))
+    else:
+        for i in range(n):
+            task(i)
+
+
 def stcc(
     x: np.ndarray, y: np.ndarray, dt: float, window: float, max_lag: float, stride: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -417,13 +430,7 @@ def stcc(
     # pool and handing out lags costs more than the lags (one 5 s window and 0.5 s of
     # lag at 50 Hz, 26 lags: 6.6 ms threaded, 2.5 ms in one thread; threads win from
     # about 100 000 samples)
-    threads = min(os.cpu_count() or 1, lmax + 1) if x.size >= _STCC_THREADED else 1
-    if threads == 1:
-        for lag in range(lmax + 1):
-            lagged(lag)
-    else:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(lagged, range(lmax + 1)))
+    _each(lagged, lmax + 1, threaded=x.size >= _STCC_THREADED)
     return starts * dt, np.arange(lmax + 1) * dt, out
 
 
@@ -582,13 +589,7 @@ def effective_samples(
 
     # one row per task across threads (the FFTs release the GIL); each row is computed
     # alone, so the result does not depend on the number of threads
-    threads = min(os.cpu_count() or 1, xf.shape[0])
-    if threads > 1:
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(row, range(xf.shape[0])))
-    else:
-        for i in range(xf.shape[0]):
-            row(i)
+    _each(row, xf.shape[0])
     return out.reshape(*lead, starts.size)
 
 
