@@ -176,3 +176,32 @@ def test_an_unknown_paper_figure_name_is_refused(tmp_path):
 
     with pytest.raises(ValueError, match="no paper figure named"):
         plots.paper_figures(tmp_path, only=["fig_nonesuch.png"])
+
+
+def test_an_interrupt_before_the_results_file_still_names_every_kept_stage(
+    counted, tmp_path, monkeypatch
+):
+    """SIGINT between a stage's record and the results file (the signal lands in
+    ``write_json``): the results file is written again for the stages kept, so it, the
+    interruption and ``--resume`` agree on them."""
+    import json
+
+    real = harness.write_json
+    calls = []
+
+    def interrupted_once(obj, path):
+        calls.append(obj["stages_done"])
+        if len(calls) == 2:  # the second stage is saved, its results file not yet written
+            raise KeyboardInterrupt
+        real(obj, path)
+
+    monkeypatch.setattr(harness, "write_json", interrupted_once)
+    monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
+    out = tmp_path / "out"
+    with pytest.raises(harness.RunInterrupted) as exc:
+        _run(out, resume=False)
+    assert exc.value.kept == list(STAGES[:2])
+    assert json.loads((out / "results.json").read_text())["stages_done"] == list(STAGES[:2])
+    monkeypatch.setattr(harness, "write_json", real)
+    res = _run(out)
+    assert res["stages_reused"][:2] == list(STAGES[:2]) and counted[STAGES[1]] == 1

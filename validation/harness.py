@@ -338,6 +338,17 @@ def run_validation(
             return _figures(out_dir, state, profile, rendering, drawing)
         return _figures(out_dir, state, profile)
 
+    def write_partial() -> None:
+        """``results.json`` of the stages in ``done`` (saved with their pickles), partial."""
+        nonlocal engine_record
+        kept = {k: state[k] for k in done}
+        partial = _results(profile, kept, {k: timings[k] for k in done}, workers, t0,
+                           model_files, environment)  # fmt: skip
+        engine_record = engine_record or _engine_record(engine, integrator, model_files)
+        partial.update(engine=engine_record)
+        partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
+        write_json(partial, out_dir / "results.json")
+
     try:
         for name in STAGES:
             bar.set_postfix_str(name)
@@ -366,15 +377,14 @@ def run_validation(
                 drawing = worker
                 _send_figure_job(drawing, out_dir, "rod", {"rod_ds": state[name][2]})
             bar.update(1)
-            partial = _results(profile, state, timings, workers, t0, model_files, environment)
-            engine_record = engine_record or _engine_record(engine, integrator, model_files)
-            partial.update(engine=engine_record)
-            partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
-            write_json(partial, out_dir / "results.json")
+            write_partial()
             if on_stage:
                 on_stage(name, timings[name], name in reused)
     except KeyboardInterrupt:
         bar.close()
+        # the signal may have come between a stage's pickle and the results file: the
+        # file then names every stage kept (those a --resume reuses), as the message does
+        write_partial()
         raise RunInterrupted(list(done), out_dir) from None
     except (ParameterError, WriteError):  # bad input or an unwritable output: not a crash
         bar.close()
@@ -725,12 +735,11 @@ def _results(
     timings: dict,
     workers: int | None,
     t0: float,
-    model_files: dict[str, str] | None = None,
-    environment: dict[str, Any] | None = None,
+    model_files: dict[str, str] | None,
+    environment: dict[str, Any],
 ) -> dict[str, Any]:
     """The results dictionary from the stages finished so far (in stage order);
-    ``environment``: :func:`validation.ci_options.run_environment` of the run, computed
-    here where not given."""
+    ``environment``: :func:`validation.ci_options.run_environment` of the run."""
     checks, paper_rows = [], []
     scan_rows, rod_rows, figure_files = [], [], []
     robust, nonlinear = None, None
@@ -775,7 +784,7 @@ def _results(
         "rod_length": rod_rows,
         "figures": [str(Path(p).name) for p in figure_files],
         "divergence": divergence,
-        **(environment or run_environment(model_files)),  # versions, platform, fingerprint
+        **environment,  # versions, platform, fingerprint
         "model_files": {k: str(v) for k, v in (model_files or {}).items()},
         "workers": workers,
         "timings_s": dict(timings),
