@@ -205,3 +205,27 @@ def test_an_interrupt_before_the_results_file_still_names_every_kept_stage(
     monkeypatch.setattr(harness, "write_json", real)
     res = _run(out)
     assert res["stages_reused"][:2] == list(STAGES[:2]) and counted[STAGES[1]] == 1
+
+
+@pytest.mark.parametrize("signalled", [True, False])
+def test_a_stage_failing_after_an_interrupt_signal_is_an_interruption(
+    counted, tmp_path, monkeypatch, signalled
+):
+    """A KeyboardInterrupt inside an extension module's import comes out as another
+    exception (pandas' C parser: ImportError). After a signal that is the interruption,
+    with the stages kept and no crash recorded; without one it stays a crash."""
+    import json
+
+    def imports_pandas(*args, **kwargs):
+        raise ImportError("pd_parser.c could not import module pandas")
+
+    monkeypatch.setattr(harness.agreement, "rod_length_study", imports_pandas)
+    monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
+    out = tmp_path / "out"
+    expected = harness.RunInterrupted if signalled else harness.StageCrashed
+    with pytest.raises(expected) as exc:
+        run_validation(PROFILES["smoke"], out, progress=False, interrupted=lambda: signalled)
+    assert exc.value.kept == [STAGES[0]]
+    written = json.loads((out / "results.json").read_text())
+    assert written["stages_done"] == [STAGES[0]]
+    assert ("crashed" in written) is not signalled

@@ -259,6 +259,7 @@ def run_validation(
     model_files: dict[str, str] | None = None,
     engine: str = "mujoco",
     integrator: str | None = None,
+    interrupted: Callable[[], bool] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """Run every stage; returns the results dictionary written to results.json.
 
@@ -272,7 +273,12 @@ def run_validation(
     On KeyboardInterrupt (SIGINT, or SIGTERM turned into one by the CLI) raises
     :class:`RunInterrupted` naming the stages kept; when a stage raises (an
     engine crash) writes ``results.json`` partial with ``"crashed"`` and raises
-    :class:`StageCrashed`.  A script calling this needs an
+    :class:`StageCrashed`.  ``interrupted()`` says whether an interrupt signal has
+    arrived (the CLI's :func:`validation.cli_args.interrupt_signals`): a KeyboardInterrupt
+    raised inside an extension module's import can surface as another exception (a
+    SIGTERM during the rod-length stage's first ``import xarray`` came out of pandas' C
+    parser as ``ImportError``), so a stage that raises after one counts as interrupted,
+    not crashed.  A script calling this needs an
     ``if __name__ == "__main__":`` guard: the rod-length stage's process pool
     (forkserver) imports the main module in its workers.
     """
@@ -391,6 +397,9 @@ def run_validation(
         raise
     except Exception as exc:  # the engine crashed inside a stage: keep what finished
         bar.close()
+        if interrupted is not None and interrupted():  # the interrupt, in another guise
+            write_partial()
+            raise RunInterrupted(list(done), out_dir) from exc
         _write_crash(out_dir, name, exc, _results(profile, state, timings, workers, t0,
                                                   model_files, environment),
                      done, reused)  # fmt: skip

@@ -123,6 +123,7 @@ def cmd_run(a: argparse.Namespace) -> int:
                 figures=not a.no_figures,
                 resume=a.resume,
                 on_stage=on_stage,
+                interrupted=lambda: got["signal"] is not None,
                 model_files=files,
                 engine=a.engine,
                 integrator=a.integrator,
@@ -202,7 +203,7 @@ def cmd_baseline(a: argparse.Namespace) -> int:
                 results = run_validation(
                     PROFILES[a.profile], Path(tmp), workers=a.workers,
                     progress=progress_enabled(), figures=False, engine=a.engine,
-                    integrator=a.integrator,
+                    integrator=a.integrator, interrupted=lambda: got["signal"] is not None,
                 )  # fmt: skip
             except RunInterrupted:
                 name, status = interrupted_status(got)
