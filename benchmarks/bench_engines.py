@@ -28,7 +28,7 @@ from cipcore.registry import availability, engine_names, get_engine
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--engines", default=",".join(engine_names()))
     ap.add_argument("--realizations", default="1,16,128")
     ap.add_argument("--duration", type=float, default=1.0, help="simulated s per realisation")

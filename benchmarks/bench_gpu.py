@@ -100,7 +100,7 @@ def sweep_grid(n_points: int):
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--full", action="store_true", help="run the two workloads whole")
     smoke = "without CUDA: small sizes on warp's CPU device (not GPU numbers)"
     ap.add_argument("--cpu-smoke", action="store_true", help=smoke)

@@ -78,7 +78,7 @@ def report(r: dict) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--profiles", default="quick,smoke", help="comma-separated profiles")
     ap.add_argument("--seed", type=int, default=2011)
     ap.add_argument("--no-figures", action="store_true", help="time the runs without figures")

@@ -17,7 +17,7 @@ from validation.metrics import stcc, stcc_significance_bartlett
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--realizations", type=int, default=4)
     ap.add_argument("--duration", type=float, default=1200.0)
     a = ap.parse_args()

@@ -50,7 +50,7 @@ def time_pytest(extra: list[str]) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", type=Path, help="also write the numbers to this file")
     a, extra = ap.parse_known_args()
     host_before = hostspeed.line()

@@ -62,7 +62,7 @@ def run(name: str, model: str, seed: int, n: int, mass_ratio: float, late: bool)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--engines", default="mujoco,bullet,exudyn,simbody")
     ap.add_argument("--seeds", default="0")
     ap.add_argument("--realizations", type=int, default=4)

@@ -25,7 +25,7 @@ from validation.report import jsonable, paper_section
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--profile", choices=tuple(PROFILES), default="paper")
     ap.add_argument("--realizations", type=int, help="STCC / spectra / velocity realisations")
     ap.add_argument("--duration", type=float, help="their duration (s)")

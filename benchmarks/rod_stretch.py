@@ -61,7 +61,7 @@ def closed_loop(name: str) -> float:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--engines", default="mujoco,drake,bullet,exudyn,simbody")
     a = ap.parse_args()
     print(f"{'engine':10s} {'open loop, 0.05 rad, 1 s':>26s} {'closed loop, 1e-3 m, 2 s':>26s}")

@@ -94,7 +94,7 @@ def table(r: dict) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--profile", choices=tuple(DEFAULT), action="append")
     ap.add_argument("--seeds", type=seeds_arg, help="e.g. 1-20 (default: 1..20 smoke, 1..5 quick)")
     ap.add_argument("--workers", type=int, default=None)

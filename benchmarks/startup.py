@@ -56,7 +56,7 @@ def slowest_imports(cmd: list[str], n: int = 10) -> list[tuple[int, str]]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=7, help="fresh processes per command")
     ap.add_argument("--importtime", action="store_true", help="also list the slowest imports")
     a = ap.parse_args()

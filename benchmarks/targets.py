@@ -111,7 +111,7 @@ def _row(rows: list[dict], what: str, value: str, target: str, met: bool | None,
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--skip", default="", help=f"comma list of parts to leave out: {PARTS}")
     ap.add_argument("--repeat", type=int, default=7, help="start-up runs per command")
     ap.add_argument("--seed", type=int, default=2011)
