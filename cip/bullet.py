@@ -112,6 +112,11 @@ class BulletRollout:
         processes (:class:`cip.workers.ProcessBlocks`), each building this class for a block.
     """
 
+    @staticmethod
+    def preload() -> None:
+        """Import pybullet (:class:`cip.workers.ProcessBlocks` forks after)."""
+        _pybullet()
+
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         self.pb = _pybullet()
         g = geometry_from_mujoco(model)

@@ -78,7 +78,7 @@ import numpy as np
 
 from cipcore.engine import Capabilities
 
-from .drake_plant import build_plant, generalized_forces, geometry_from_mujoco
+from .drake_plant import build_plant, generalized_forces, geometry_from_mujoco, load_pydrake
 from .engines import RigidBodyEngine
 from .mjcf_params import ModelMapping
 
@@ -101,6 +101,11 @@ class DrakeRollout:
         ``threads`` are worker processes (:class:`cip.workers.ProcessBlocks`), each
         building this class for a consecutive block of realisations.
     """
+
+    @staticmethod
+    def preload() -> None:
+        """Import pydrake's plant modules (:class:`cip.workers.ProcessBlocks` forks after)."""
+        load_pydrake()
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         g = geometry_from_mujoco(model)

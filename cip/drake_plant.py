@@ -177,6 +177,13 @@ class DrakeCIP:
     v_theta: np.ndarray
 
 
+def load_pydrake() -> None:
+    """Import the pydrake modules :func:`build_plant` uses (about 0.25 s, once a process)."""
+    import pydrake.math
+    import pydrake.multibody.plant
+    import pydrake.multibody.tree  # noqa: F401
+
+
 def build_plant(g: CIPGeometry) -> DrakeCIP:
     """The discrete (time step dt, SAP) ``MultibodyPlant`` of the CIP described by ``g``."""
     from pydrake.math import RigidTransform

@@ -207,6 +207,12 @@ class ExudynRollout:
         processes (:class:`cip.workers.ProcessBlocks`), each building this class for a block.
     """
 
+    @staticmethod
+    def preload() -> None:
+        """Import Exudyn (:class:`cip.workers.ProcessBlocks` forks after)."""
+        import exudyn
+        import exudyn.itemInterface  # noqa: F401
+
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         g = geometry_from_mujoco(model)
         for i in range(g.n_controllers):

@@ -65,6 +65,10 @@ class RolloutBackend(Protocol):
     (R, nstate), an ``mjSTATE_FULLPHYSICS`` vector (time, qpos, qvel, ...), over
     n = ctrl.shape[1] steps, the control ``ctrl[:, k]`` (R, n, nu) held over step k,
     and writes the states after each step into ``out`` (R, n, nstate).
+
+    A backend stepped in worker processes (:class:`cip.workers.ProcessBlocks`) may
+    also have a static ``preload()`` that imports its engine's library: the parent
+    runs it before forking the workers, which then inherit it.
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None: ...

@@ -184,6 +184,11 @@ class SimbodyRollout:
         processes (:class:`cip.workers.ProcessBlocks`), each building this class for a block.
     """
 
+    @staticmethod
+    def preload() -> None:
+        """Import OpenSim (:class:`cip.workers.ProcessBlocks` forks after)."""
+        _opensim()
+
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         g = geometry_from_mujoco(model)
         self.geometry = g

@@ -108,6 +108,50 @@ def test_an_error_in_a_worker_is_raised_in_the_parent():
     rollout.close()
 
 
+#: what the parent of the workers has loaded (:class:`_Preloading`)
+_LOADED: list[str] = []
+
+
+class _Preloading:
+    """A backend whose library is loaded by ``preload()``: each block writes how many
+    loads its worker found, at its building, into every state."""
+
+    @staticmethod
+    def preload() -> None:
+        _LOADED.append("library")
+
+    def __init__(self, model, n_realizations, threads):
+        self.found = len(_LOADED)
+
+    def __call__(self, state, ctrl, out):
+        out[...] = self.found
+
+    def warnings(self) -> int:
+        return 0
+
+
+def test_forked_workers_inherit_the_library_the_parent_preloaded():
+    """The parent runs the backend's ``preload()`` before forking, so no worker imports
+    the engine's library at each call; not for a run in this process (the backend
+    imports it when it needs it)."""
+    from cip import workers
+    from cip.model import CIPParams, build
+
+    if workers.start_method() != "fork":
+        pytest.skip(f"workers start from {workers.start_method()} here (a runtime with "
+                    "threads is loaded): the preload is for forked workers")  # fmt: skip
+    model = build("single", CIPParams())
+    _LOADED.clear()
+    workers.ProcessBlocks(_Preloading, model, 3, workers=1)
+    assert _LOADED == []
+    rollout = workers.ProcessBlocks(_Preloading, model, 3, workers=2)
+    assert _LOADED == ["library"] and rollout.workers == 2
+    out = np.empty((3, 2, 10))
+    rollout(np.zeros((3, 10)), np.zeros((3, 2, 1)), out)
+    assert (out == 1).all()  # every worker found it loaded when it built its block
+    rollout.close()
+
+
 def test_a_fork_server_runs_an_unpicklable_backend_in_process(monkeypatch):
     """With a threaded runtime loaded the workers cannot fork; a backend built inside a
     function (a fault's) cannot travel to a fork server, so it steps in this process."""
