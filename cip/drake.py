@@ -60,10 +60,11 @@ it), the rest the per-step Python calls.  No linearisation is offered: the
 discrete SAP plant has no continuous-time qacc for a rigid rod.
 
 Processes: pydrake's step holds the GIL, so the engine's ``threads`` are worker
-processes (:class:`cip.workers.ProcessBlocks`), each stepping a block of
-consecutive realisations in its own :class:`DrakeRollout`; every realisation has
-its own context and element-wise forces, so any split gives the same numbers to
-the bit.  (Until this was wired through the engine, ``threads`` split the
+processes (:class:`cip.workers.ProcessBlocks`), one per driver block of
+consecutive realisations, each stepping its block in its own
+:class:`DrakeRollout` while the block's thread computes its feedback; every
+realisation has its own context and element-wise forces, so any split gives the
+same numbers to the bit.  (Until this was wired through the engine, ``threads`` split the
 realisations across threads, which the lock serialised: the earlier measurements
 of 0.98x and 0.91x for two "processes" measured those threads.)  ``python
 benchmarks/bench_engines.py --engines drake --realizations 8 --duration 2

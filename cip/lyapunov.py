@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cipcore.driver import run_blocks
+from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import GainNoise
 from cipcore.params import BalanceParams, ParameterError, check_count, whole_steps
@@ -118,16 +118,17 @@ def lyapunov_full(
     noise = GainNoise(seed, n_realizations, nc)
     transient_steps = round(transient / params.dt)
     logsum = np.zeros(n_realizations)
-    runners: dict[int, tuple[CIPRunner, _Renormaliser]] = {}
+    # each block's runner is built here, before the driver's threads start (a backend may
+    # fork worker processes, cip.workers: never beside running threads)
+    runners = {
+        block.start: _start(model, params, physical, block, seed, epsilon, backend, mj_model)
+        for block in realization_blocks(n_realizations, threads)
+    }
     d = params.delay_steps
     # accumulation starts with the first chunk that ends after the transient
     start = (transient_steps // d) * d
 
     def work(block: slice, xi: np.ndarray, step: int) -> None:
-        if block.start not in runners:
-            runners[block.start] = _start(
-                model, params, physical, block, seed, epsilon, backend, mj_model
-            )
         r, renorm = runners[block.start]
         n = xi.shape[1]
         r.advance(xi)

@@ -21,7 +21,7 @@ import warnings
 
 import numpy as np
 
-from cipcore.driver import run_blocks
+from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import ArrayNoise, GainNoise, make_noise
 from cipcore.params import BalanceParams, whole_steps
@@ -87,19 +87,22 @@ def simulate_full(
     out = {f: np.empty((nreal, n_samples, nc), dtype=dtype) for f in fields}
     max_angle = np.zeros(nreal)
     recorded = np.zeros(nreal, dtype=int)
-    runners: dict[int, CIPRunner] = {}
+    # each block's runner is built here, in this thread, before the driver's threads
+    # start: a backend may fork worker processes (cip.workers), never beside running threads
+    runners = {
+        block.start: CIPRunner(
+            model, params, physical, block.stop - block.start, amplitude,
+            controller=controller, threads=1, backend=backend, mj_model=mj_model,
+        )
+        for block in realization_blocks(nreal, threads)
+    }  # fmt: skip
     diverged: list[dict] = []
     stop = [n_steps]  # end of the earliest diverging chunk: every block runs up to it
 
     def work(block: slice, xi: np.ndarray, step: int) -> bool:
         if step >= stop[0]:
             return False  # a realisation diverged before this chunk: stop here
-        runner = runners.get(block.start)
-        if runner is None:
-            runner = runners[block.start] = CIPRunner(
-                model, params, physical, block.stop - block.start, amplitude,
-                controller=controller, threads=1, backend=backend, mj_model=mj_model,
-            )  # fmt: skip
+        runner = runners[block.start]
         n = xi.shape[1]
         before = runner.state
         states = runner.advance(xi)

@@ -5,7 +5,12 @@ the interpreter lock: two threads stepping two realisation blocks take as long
 as one thread stepping both.  :class:`ProcessBlocks` wraps such a
 :class:`cip.runner.RolloutBackend`: the R realisations are split into
 consecutive blocks, and each block is stepped by its own instance of the backend
-in a worker process.  Every realisation of these backends has its own world
+in a worker process.  The engines (:class:`cip.engines.RigidBodyEngine`) give each
+of the driver's blocks a ``ProcessBlocks`` of one worker (``one_in_process=False``),
+so that the blocks, each on its own thread, never wait for each other: one
+``ProcessBlocks`` of several workers meets them all at every delay chunk, and a
+core that stalls in one chunk holds up every block (Drake, 2 cores: 1.51 to 1.55
+times one process against 1.73 to 1.75 for independent blocks).  Every realisation of these backends has its own world
 (context, client, system or manager) and element-wise forces, so a split changes
 no number: the result is bit-identical for any worker count (tested per engine).
 
@@ -126,24 +131,37 @@ class ProcessBlocks:
     backend : the engine's backend class, built as ``backend(model, n, 1)`` per block.
     model : the compiled MuJoCo CIP.
     n_realizations : number of realisations R.
-    workers : worker processes asked for; at most R.  1, a daemonic process (a
-        pool's worker, which may not start processes) or a fork server that cannot
-        carry ``backend`` steps every realisation in this process.
+    workers : worker processes asked for; at most R.  1 (unless ``one_in_process`` is
+        False), a daemonic process (a pool's worker, which may not start processes) or
+        a fork server that cannot carry ``backend`` steps every realisation in this
+        process.
+    one_in_process : with one worker, step in this process (True) or in one worker
+        process (False: the caller runs several such blocks on threads, each thread
+        waiting on its own process, :class:`cip.engines.RigidBodyEngine`).
     """
 
-    def __init__(self, backend: type, model: Any, n_realizations: int, workers: int) -> None:
+    def __init__(
+        self,
+        backend: type,
+        model: Any,
+        n_realizations: int,
+        workers: int,
+        *,
+        one_in_process: bool = True,
+    ) -> None:
         workers = max(1, min(int(workers), n_realizations))
         method = start_method()
-        if workers > 1 and mp.current_process().daemon:
-            workers = 1  # a pool's worker (a sweep point) may not start processes
-        if workers > 1 and method != "fork" and not _picklable(backend, model):
-            workers = 1
-        self.workers = workers
-        sizes = [len(b) for b in np.array_split(np.arange(n_realizations), workers)]
+        remote = workers > 1 or not one_in_process
+        if remote and mp.current_process().daemon:
+            remote = False  # a pool's worker (a sweep point) may not start processes
+        if remote and method != "fork" and not _picklable(backend, model):
+            remote = False
+        self.workers = workers if remote else 1
+        sizes = [len(b) for b in np.array_split(np.arange(n_realizations), self.workers)]
         self.bounds = np.cumsum([0, *sizes])
         self.conns: list[Connection] = []
         self.procs: list[Any] = []
-        self.local = backend(model, n_realizations, 1) if workers == 1 else None
+        self.local = None if remote else backend(model, n_realizations, 1)
         if self.local is not None:
             return
         if method == "fork" and hasattr(backend, "preload"):
@@ -158,7 +176,7 @@ class ProcessBlocks:
             self.procs.append(proc)
         self._finalizer = weakref.finalize(self, ProcessBlocks._stop, self.conns, self.procs)
         _replies(self.conns)  # "ready", or the error of building a block
-        self._warnings = [0] * workers
+        self._warnings = [0] * self.workers
 
     @staticmethod
     def _stop(conns: list[Connection], procs: list) -> None:

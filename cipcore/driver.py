@@ -31,6 +31,17 @@ def default_threads() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+def realization_blocks(n_realizations: int, threads: int | None = None) -> list[slice]:
+    """The contiguous realisation blocks :func:`run_blocks` runs, one per thread:
+    ``min(threads, n_realizations)`` of them (``threads`` None: every core), sizes
+    differing by at most one.  A caller that builds per-block state before the threads
+    start (a backend that forks worker processes must not fork beside running threads)
+    builds it for these."""
+    threads = min(threads or default_threads(), n_realizations)
+    bounds = np.linspace(0, n_realizations, threads + 1).astype(int)
+    return [slice(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
 def run_blocks(
     noise: GainNoise,
     n_steps: int,
@@ -51,9 +62,7 @@ def run_blocks(
     """
     chunk_steps = chunk_steps or CHUNK_STEPS
     nreal = noise.n_realizations
-    threads = min(threads or default_threads(), nreal)
-    bounds = np.linspace(0, nreal, threads + 1).astype(int)
-    blocks = [slice(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+    blocks = realization_blocks(nreal, threads)
     bar = tqdm(
         total=n_steps * nreal,
         unit="step",

@@ -52,13 +52,13 @@ def test_a_split_from_the_fork_server_is_bit_identical(monkeypatch, always_worke
     started = []
     init = workers.ProcessBlocks.__init__
 
-    def spy(self, *args):
-        init(self, *args)
-        started.append([p._popen.__class__.__module__ for p in self.procs])
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        started.extend(p._popen.__class__.__module__ for p in self.procs)
 
     monkeypatch.setattr(workers.ProcessBlocks, "__init__", spy)
     two = engine.simulate("coupled", params, 0.025, 3, seed=7, threads=2, progress=False)
-    assert started and all(m == ["multiprocessing.popen_forkserver"] * 2 for m in started)
+    assert started == ["multiprocessing.popen_forkserver"] * 2  # one per driver block
     for field in one.data:
         assert np.array_equal(two[field], one[field]), field
 
@@ -152,6 +152,31 @@ def test_forked_workers_inherit_the_library_the_parent_preloaded():
     rollout.close()
 
 
+def test_one_block_steps_in_a_process_of_its_own_when_asked():
+    """``one_in_process=False``: a driver block in a worker process even alone (the
+    engines run one such block per thread); by default one block steps here."""
+    import os
+
+    from cip import workers
+    from cip.model import CIPParams, build
+
+    class Pid(_Preloading):
+        def __call__(self, state, ctrl, out):
+            out[...] = os.getpid()
+
+    model = build("single", CIPParams())
+    here = workers.ProcessBlocks(Pid, model, 2, 1)
+    assert here.local is not None and here.procs == []
+    if workers.start_method() != "fork":
+        pytest.skip("a local class reaches no fork server: it steps here (tested below)")
+    away = workers.ProcessBlocks(Pid, model, 2, 1, one_in_process=False)
+    assert away.local is None and len(away.procs) == 1 and away.workers == 1
+    out = np.empty((2, 3, 10))
+    away(np.zeros((2, 10)), np.zeros((2, 3, 1)), out)
+    assert (out == away.procs[0].pid).all() and away.procs[0].pid != os.getpid()
+    away.close()
+
+
 def test_a_fork_server_runs_an_unpicklable_backend_in_process(monkeypatch):
     """With a threaded runtime loaded the workers cannot fork; a backend built inside a
     function (a fault's) cannot travel to a fork server, so it steps in this process."""
@@ -180,9 +205,12 @@ def test_workers_fork_only_without_a_threaded_runtime(monkeypatch):
 
 
 def test_engine_threads_reach_the_worker_processes(monkeypatch):
-    """``threads`` of ``simulate`` and ``lyapunov`` become Drake's worker processes (one
-    driver block): stepping blocks on threads gained nothing, the step holding the GIL.
-    A run below ``MIN_WORKER_STEPS`` realisation-steps starts none."""
+    """``threads`` of ``simulate`` and ``lyapunov`` become Drake's worker processes, one
+    per driver block (stepping blocks on threads gained nothing, the step holding the
+    GIL), each started before the driver's threads.  A run below ``MIN_WORKER_STEPS``
+    realisation-steps starts none."""
+    import threading
+
     import cip.engines
     from cip import workers
 
@@ -190,21 +218,21 @@ def test_engine_threads_reach_the_worker_processes(monkeypatch):
     built = []
     init = workers.ProcessBlocks.__init__
 
-    def spy(self, backend, model, n_realizations, n_workers):
-        init(self, backend, model, n_realizations, n_workers)
-        built.append((n_realizations, self.workers))
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        built.append((args[2], len(self.procs), threading.current_thread().name))
 
     monkeypatch.setattr(workers.ProcessBlocks, "__init__", spy)
     params = BalanceParams(beta=20.0, tau=0.01, dt=1e-3)
     engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
-    assert built == [(4, 1)]  # 80 realisation-steps: cheaper than starting a worker
+    assert built == []  # 80 realisation-steps: cheaper than starting a worker
     monkeypatch.setattr(cip.engines, "MIN_WORKER_STEPS", 80)
-    built.clear()
     engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
-    assert built == [(4, 2)]
+    main = threading.main_thread().name
+    assert built == [(2, 1, main), (2, 1, main)]  # two blocks, a process each
     built.clear()
     lam = engine.lyapunov("single", params, 0.05, 2, seed=3, threads=2, transient=0.0)
-    assert built and all(w == 2 for _, w in built), built
+    assert built == [(1, 1, main), (1, 1, main)], built
     assert np.isfinite(lam.per_realization).all()
 
 
