@@ -10,9 +10,10 @@ of the driver's blocks a ``ProcessBlocks`` of one worker (``one_in_process=False
 so that the blocks, each on its own thread, never wait for each other: one
 ``ProcessBlocks`` of several workers meets them all at every delay chunk, and a
 core that stalls in one chunk holds up every block (Drake, 2 cores: 1.51 to 1.55
-times one process against 1.73 to 1.75 for independent blocks).  Every realisation of these backends has its own world
-(context, client, system or manager) and element-wise forces, so a split changes
-no number: the result is bit-identical for any worker count (tested per engine).
+times one process against 1.73 to 1.75 for independent blocks).  Every realisation
+of these backends has its own world (context, client, system or manager) and
+element-wise forces, so a split changes no number: the result is bit-identical for
+any worker count (tested per engine).
 
 Each delay chunk costs one round trip per worker: the block's states and
 controls out, its recorded states back (R/W x n x nstate float64: 100 steps of 8
@@ -25,10 +26,9 @@ imported lazily (on building its first world) names that import in an optional
 after the first), so that the workers inherit the library instead of each importing
 it at every call (pydrake 0.25 s, OpenSim 0.47 s, Exudyn 0.13 s, pybullet 0.08 s on
 the development machine; a Drake or Simbody call's worker start-up took 0.22 to
-0.24 s before, 0.02 s after).  A process that has loaded a
-runtime with threads of its own (JAX, warp, torch) must not fork; the workers
-then start from a fork server, which needs the backend class and the model
-picklable.  A backend built inside a function (a fault of
+0.24 s before, 0.02 s after).  A process that has loaded a runtime with threads of
+its own (JAX, warp, torch) must not fork; the workers then start from a fork
+server, which needs the backend class and the model picklable.  A backend built inside a function (a fault of
 :mod:`validation.faults`) is not: it then steps in this process, and
 :attr:`ProcessBlocks.workers` says how many processes ran.
 
