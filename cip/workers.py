@@ -28,9 +28,9 @@ it at every call (pydrake 0.25 s, OpenSim 0.47 s, Exudyn 0.13 s, pybullet 0.08 s
 the development machine; a Drake or Simbody call's worker start-up took 0.22 to
 0.24 s before, 0.02 s after).  A process that has loaded a runtime with threads of
 its own (JAX, warp, torch) must not fork; the workers then start from a fork
-server, which needs the backend class and the model picklable.  A backend built inside a function (a fault of
-:mod:`validation.faults`) is not: it then steps in this process, and
-:attr:`ProcessBlocks.workers` says how many processes ran.
+server, which needs the backend class and the model picklable.  A backend built
+inside a function (a fault of :mod:`validation.faults`) is not: it then steps in
+this process, and :attr:`ProcessBlocks.workers` says how many processes ran.
 
 Workers end with their rollout object, at the parent's exit, or, when the
 parent is killed outright (no clean-up runs), within :data:`ORPHAN_POLL_S` of
