@@ -10,6 +10,7 @@ states over a delay chunk.  :data:`MUJOCO` is MuJoCo on the CPU.
 from __future__ import annotations
 
 import functools
+import multiprocessing as mp
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Unpack
@@ -180,13 +181,15 @@ class RigidBodyEngine:
         ``max_threads``; for a backend whose step holds the GIL, each of the
         ``threads`` driver blocks in a worker process of its own (the same numbers for
         any count), or one block in this process when the ``work``
-        (realisation-steps) is below :data:`MIN_WORKER_STEPS`."""
+        (realisation-steps) is below :data:`MIN_WORKER_STEPS` or this process is a
+        pool's worker (a sweep point: daemonic, it may not start processes, and
+        threads sharing the interpreter lock would gain nothing)."""
         if self.max_threads is not None:
             options["threads"] = min(options.get("threads") or self.max_threads, self.max_threads)
         backend = options.get("backend") or self._backend()
         if self.backend_workers:
             workers = options.get("threads") or default_threads()
-            if work < MIN_WORKER_STEPS:
+            if work < MIN_WORKER_STEPS or mp.current_process().daemon:
                 workers = 1
             if workers > 1:
                 backend = functools.partial(_in_worker, backend)

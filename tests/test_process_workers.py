@@ -236,6 +236,38 @@ def test_engine_threads_reach_the_worker_processes(monkeypatch):
     assert np.isfinite(lam.per_realization).all()
 
 
+def test_a_pool_worker_steps_its_realisations_on_one_thread(monkeypatch, always_workers):
+    """In a pool's worker (daemonic: a sweep point), which may not start processes, the
+    driver runs one block on one thread (threads sharing the interpreter lock gain
+    nothing there) and builds no worker process; the numbers are those of any split."""
+    import multiprocessing as mp
+    import threading
+
+    from cip import workers
+
+    engine = engine_or_skip("drake")
+    params = BalanceParams(beta=20.0, tau=0.01, dt=1e-3)
+    reference = engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
+    built, threads = [], []
+    init = workers.ProcessBlocks.__init__
+    monkeypatch.setattr(
+        workers.ProcessBlocks,
+        "__init__",
+        lambda self, *a, **k: built.append(a) or init(self, *a, **k),
+    )
+    real_thread = threading.Thread.__init__
+    monkeypatch.setattr(
+        threading.Thread,
+        "__init__",
+        lambda self, *a, **k: threads.append(k) or real_thread(self, *a, **k),
+    )
+    monkeypatch.setattr(mp.current_process(), "daemon", True)
+    pooled = engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
+    assert built == [] and threads == []
+    for field in reference.data:
+        assert np.array_equal(pooled[field], reference[field]), field
+
+
 def test_the_worker_engines_are_every_installed_engine_that_declares_workers():
     from cipcore.registry import availability, engine_names, get_engine
 
