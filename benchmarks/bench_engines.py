@@ -10,7 +10,7 @@ named by ``--baseline`` measured in the same run.  ``--threads`` takes a list
 count is printed (for Drake the threads are worker processes, so ``--engines drake
 --threads 1,2`` shows its 1-process against its 2-process speed in one run).  The
 load average is printed before and after (a shared machine's numbers mean little
-without it); when MJX ran, its compile times (``cip.mjx.COMPILE_LOG``) too.
+without it); when MJX ran, its compile times (``cip.engines.mjx.COMPILE_LOG``) too.
 
 Usage:  python benchmarks/bench_engines.py [--engines mujoco,mjx] [--realizations 1,16,128]
                                            [--duration 1] [--threads N[,M...]]
@@ -66,7 +66,7 @@ def main() -> None:
                 print(f"{name:12s} {t or '-':>7} {r:7d} {first:13.2f} {v:12.4g} {ratio} "
                       f"{v / one:12.3f}")  # fmt: skip
     print("load average after:  {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()))
-    mjx = sys.modules.get("cip.mjx")
+    mjx = sys.modules.get("cip.engines.mjx")
     for c in getattr(mjx, "COMPILE_LOG", []):
         print(f"mjx compiled {c['rows']} rows x {c['steps']} steps in {c['seconds']:.2f} s "
               f"(persistent cache {c['persistent_cache']}, "

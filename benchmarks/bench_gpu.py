@@ -36,9 +36,9 @@ PAPER = BalanceParams(beta=21.032)  # coupled model near threshold; dt = 1 ms, t
 
 
 def _batch(worlds: int, device: str, models=None, controls=None, every: int = 0):
+    from cip.engines.warp import point_control
+    from cip.engines.warp_batch import WarpBatch
     from cip.model import CIPParams, build
-    from cip.warp import point_control
-    from cip.warp_batch import WarpBatch
 
     if models is None:
         phys = CIPParams.from_reduced(PAPER)
@@ -85,8 +85,8 @@ def cpu_rate(worlds: int, chunks: int, seed: int) -> float:
 
 def sweep_grid(n_points: int):
     """rod length x amplitude, sqrt(n_points) values each: models and device controls."""
+    from cip.engines.warp import point_control
     from cip.model import CIPParams, build
-    from cip.warp import point_control
 
     k = round(np.sqrt(n_points))
     models, controls = [], []

@@ -1,6 +1,6 @@
 """Wall and CPU time of ``cip-validate run`` at the quick and smoke profiles, per stage.
 
-Each profile runs once as a fresh process (``python -m validation.cli run
+Each profile runs once as a fresh process (``python -m validation.cli.main run
 --profile P --seed S --out TMP --quiet``, figures included unless
 ``--no-figures``); the script prints the whole process's wall time, its CPU
 time (user + system of it and its children), the run's own elapsed time, and
@@ -41,7 +41,7 @@ def _children_cpu() -> float:
 def time_run(profile: str, seed: int, figures: bool, extra: list[str]) -> dict:
     """One ``cip-validate run`` in a fresh process: wall, CPU, per-stage times, load."""
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "validation.cli", "run", "--profile", profile,
+        cmd = [sys.executable, "-m", "validation.cli.main", "run", "--profile", profile,
                "--seed", str(seed), "--out", tmp, "--quiet", *extra]  # fmt: skip
         if not figures:
             cmd.append("--no-figures")

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from validation.metrics import stcc, stcc_significance_bartlett
+from validation.checks.metrics import stcc, stcc_significance_bartlett
 
 
 def main() -> None:

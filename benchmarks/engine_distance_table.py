@@ -18,7 +18,7 @@ import argparse
 from cip.model import CIPParams
 from cipcore.params import BalanceParams
 from cipcore.registry import REFERENCE, availability, get_engine
-from validation.metrics import relative_l2
+from validation.checks.metrics import relative_l2
 
 MASS_RATIOS = "1e-3,1e-5,1e-7"
 BASELINE = "mujoco"

@@ -1,13 +1,13 @@
 """Trajectory floors of the rigid-body engines: distance to the reduced model and to MuJoCo.
 
 For each engine and model, the relative L2 distance of the balancing errors
-(:func:`validation.metrics.relative_l2`) over the first 1, 2, 5 and 10 s of one
+(:func:`validation.checks.metrics.relative_l2`) over the first 1, 2, 5 and 10 s of one
 run (amplitude 1e-6 m, paper gains, ``--realizations`` realisations per seed),
 to the reduced model (eq. (3) with the delayed random-gain force of eq. (5)) and
 to MuJoCo CPU under the same noise draws, at the default m/M = 1e-3 and at
 m/M = 1e-7, where the cart reaction vanishes and what remains is the engine's
 own time discretisation.  With ``--late`` the engine runs with every control one
-step late (the fault ``delay_late`` of :mod:`validation.faults`), the distance the
+step late (the fault ``delay_late`` of :mod:`validation.faults.catalogue`), the distance the
 trajectory check must tell from the floor.
 
     python benchmarks/engine_floor.py --engines bullet,exudyn,simbody --seeds 0,1
@@ -24,8 +24,8 @@ from cip.model import CIPParams
 from cip.simulate import simulate_full
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
-from validation.faults import make_fault
-from validation.metrics import relative_l2
+from validation.checks.metrics import relative_l2
+from validation.faults.catalogue import make_fault
 from validation.profiles import PAPER_BETA
 
 WINDOWS = (1.0, 2.0, 5.0, 10.0)

@@ -19,9 +19,9 @@ import time
 from pathlib import Path
 
 from cipcore.atomic import write_text
-from validation import paper
+from validation.paper import claims as paper
 from validation.profiles import PROFILES
-from validation.report import jsonable, paper_section
+from validation.report.document import jsonable, paper_section
 
 
 def main() -> None:

@@ -66,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     env = dict(os.environ, PYTHONPATH=str(REPO))
     ref = root / f"baseline_{a.profile}.json"
     if not ref.exists():
-        r = _run([sys.executable, "-m", "validation.cli", "baseline", "--profile", a.profile,
+        r = _run([sys.executable, "-m", "validation.cli.main", "baseline", "--profile", a.profile,
                   "--out", str(ref)], env)  # fmt: skip
         if r.returncode:
             print(r.stderr[-2000:])
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{version:<8} {py}")
             rows.append({"mujoco": version, "error": py})
             continue
-        st = _run([str(py), "-m", "validation.cli", "selftest", "--json"], env)
+        st = _run([str(py), "-m", "validation.cli.main", "selftest", "--json"], env)
         try:
             s = json.loads(st.stdout.strip().splitlines()[-1])
             flagged = sum(f["flagged"] for f in s["faults"])
@@ -94,8 +94,8 @@ def main(argv: list[str] | None = None) -> int:
             errors = [ln for ln in st.stderr.splitlines() if ln.split(":")[0].endswith("Error")]
             selftest = "error: " + (errors or ["?"])[-1][:40]
         out = root / f"run-{version}"
-        rr = _run([str(py), "-m", "validation.cli", "run", "--profile", a.profile, "--no-figures",
-                   "--baseline", str(ref), "--out", str(out)], env)  # fmt: skip
+        rr = _run([str(py), "-m", "validation.cli.main", "run", "--profile", a.profile,
+                   "--no-figures", "--baseline", str(ref), "--out", str(out)], env)  # fmt: skip
         mode, moved, status = "-", "-", "error"
         if (out / "results.json").exists():
             res = json.loads((out / "results.json").read_text())

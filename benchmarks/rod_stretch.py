@@ -15,7 +15,7 @@ import argparse
 import mujoco
 import numpy as np
 
-from cip.drake_plant import geometry_from_mujoco
+from cip.engines.drake_plant import geometry_from_mujoco
 from cip.model import CIPParams, build
 from cip.runner import STATE_SPEC
 from cipcore.params import BalanceParams

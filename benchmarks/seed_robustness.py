@@ -22,8 +22,8 @@ from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
-from validation.harness import run_validation
 from validation.profiles import PROFILES
+from validation.run import run_validation
 
 DEFAULT = {"smoke": 20, "quick": 5}
 

@@ -21,12 +21,12 @@ import time
 
 CASES: tuple[tuple[str, list[str]], ...] = (
     ("python -c pass", [sys.executable, "-c", "pass"]),
-    ("cip-validate --version", [sys.executable, "-m", "validation.cli", "--version"]),
-    ("cip-validate --help", [sys.executable, "-m", "validation.cli", "--help"]),
-    ("cip-validate run --help", [sys.executable, "-m", "validation.cli", "run", "--help"]),
+    ("cip-validate --version", [sys.executable, "-m", "validation.cli.main", "--version"]),
+    ("cip-validate --help", [sys.executable, "-m", "validation.cli.main", "--help"]),
+    ("cip-validate run --help", [sys.executable, "-m", "validation.cli.main", "run", "--help"]),
     (
         "cip-validate simulate --beta -1 (usage error)",
-        [sys.executable, "-m", "validation.cli", "simulate", "--beta", "-1"],
+        [sys.executable, "-m", "validation.cli.main", "simulate", "--beta", "-1"],
     ),
 )
 

@@ -50,7 +50,7 @@ from cipcore.registry import availability, get_engine
 why = availability("mjx")
 if why is not None:
     print(json.dumps({"skipped": why})); raise SystemExit
-from cip import mjx
+from cip.engines import mjx
 eng, p, out = get_engine("mjx"), BalanceParams(beta=21.032), {}
 for n in (3, 4):
     before, t0 = len(mjx.COMPILE_LOG), time.perf_counter()

@@ -6,10 +6,10 @@
 
 Prints, per engine, integrator, model and initial amplitude, the relative L2
 distance of the balancing errors (engine vs its own twin,
-:meth:`cip.engines.RigidBodyEngine.twin_terms`, and engine vs the paper's reduced
+:meth:`cip.engines.rigid_body.RigidBodyEngine.twin_terms`, and engine vs the paper's reduced
 model), the rod's stretch against the twin's (coupled: relative L2, and the
 stretch's RMS over the balancing error's, the measure for a twin whose rod is
-rigid, :mod:`validation.rod_check`) and the largest angle.
+rigid, :mod:`validation.checks.rod`) and the largest angle.
 Below ~1e-7 m (coupled) the rod's absolute round-off sets the floor; above it
 the angles' second-order terms (growing as amplitude^2).  Each engine's
 ``twin_tolerance`` is set from the floor at 1e-6 m (the check's amplitude).
@@ -26,8 +26,8 @@ from cip.mjcf_params import read_mapping
 from cipcore.registry import availability
 from reduced import BalanceParams, simulate
 from reduced.twin import TwinParams, simulate_twin
-from validation.agreement import model_file, rigid_engine
-from validation.metrics import relative_l2
+from validation.checks.agreement import model_file, rigid_engine
+from validation.checks.metrics import relative_l2
 from validation.profiles import PAPER_BETA
 
 

@@ -23,7 +23,7 @@ at ``qpos0`` (upright, carts at rest), never from XML attributes:
   contacts, fluid forces, gravity compensation, further equalities.
 
 :func:`physical_content` returns it as plain numbers; the specification that
-judges them is :mod:`validation.conformance`.
+judges them is :mod:`validation.checks.conformance`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from .names import ROD, cart_joint, hinge_joint, tip_site
+from cip.names import ROD, cart_joint, hinge_joint, tip_site
 
 J, S, A, B = (
     mujoco.mjtObj.mjOBJ_JOINT,

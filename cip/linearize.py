@@ -27,11 +27,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from cip.model import CIPParams, bob_rotational_inertia, build
+from cip.names import cart_joint, hinge_joint, motor
 from cipcore.models import get_model
 from cipcore.params import BalanceParams
-
-from .model import CIPParams, bob_rotational_inertia, build
-from .names import cart_joint, hinge_joint, motor
 
 
 @dataclass

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cip.model import CIPParams
+from cip.runner import CIPRunner, RolloutBackend
 from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import GainNoise
@@ -27,9 +29,6 @@ from cipcore.results import LyapunovResult, check_transient
 from cipcore.schema import check_duration
 from cipcore.seeds import tangent_rng
 from cipcore.stats import mean_ci95
-
-from .model import CIPParams
-from .runner import CIPRunner, RolloutBackend
 
 
 class _Renormaliser:

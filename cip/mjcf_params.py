@@ -29,11 +29,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from cip.conformance import physical_content
+from cip.model import MODEL_DIR, CIPParams
+from cip.names import ROD, cart_damper, cart_joint, hinge_joint, motor, tip_damper, tip_site
 from cipcore.params import ParameterError
-
-from .conformance import physical_content
-from .model import MODEL_DIR, CIPParams
-from .names import ROD, cart_damper, cart_joint, hinge_joint, motor, tip_damper, tip_site
 
 #: Which model a file describes follows from how many balancers it has.
 MODEL_BY_CONTROLLERS = {1: "single", 2: "coupled"}

@@ -39,11 +39,7 @@ from pathlib import Path
 
 import mujoco
 
-from cipcore.atomic import write_text
-from cipcore.models import MODEL_NAMES, get_model
-from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
-
-from .names import (
+from cip.names import (
     ROD,
     bob_geom,
     cart_body,
@@ -53,6 +49,9 @@ from .names import (
     tip_damper,
     tip_site,
 )
+from cipcore.atomic import write_text
+from cipcore.models import MODEL_NAMES, get_model
+from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
 
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 #: MuJoCo's enum of each integrator name (``<option integrator=...>``)

@@ -27,14 +27,13 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from cip.mjstages import unused_stage_flags
+from cip.mjtimer import timers_off
+from cip.model import CIPParams, build
+from cip.names import cart_joint, hinge_joint, motor
 from cipcore.control_law import delayed_random_gain
 from cipcore.models import get_model
 from cipcore.params import BalanceParams, ParameterError
-
-from .mjstages import unused_stage_flags
-from .mjtimer import timers_off
-from .model import CIPParams, build
-from .names import cart_joint, hinge_joint, motor
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 

@@ -21,6 +21,8 @@ import warnings
 
 import numpy as np
 
+from cip.model import CIPParams, small_angle_limit
+from cip.runner import CIPRunner, Controller, RolloutBackend
 from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import ArrayNoise, GainNoise, make_noise
@@ -33,9 +35,6 @@ from cipcore.schema import (
     check_duration,
     plan_recording,
 )
-
-from .model import CIPParams, small_angle_limit
-from .runner import CIPRunner, Controller, RolloutBackend
 
 FULL_FIELDS = tuple(UNITS)
 

@@ -5,7 +5,7 @@ the interpreter lock: two threads stepping two realisation blocks take as long
 as one thread stepping both.  :class:`ProcessBlocks` wraps such a
 :class:`cip.runner.RolloutBackend`: the R realisations are split into
 consecutive blocks, and each block is stepped by its own instance of the backend
-in a worker process.  The engines (:class:`cip.engines.RigidBodyEngine`) give each
+in a worker process.  The engines (:class:`cip.engines.rigid_body.RigidBodyEngine`) give each
 of the driver's blocks a ``ProcessBlocks`` of one worker (``one_in_process=False``),
 so that the blocks, each on its own thread, never wait for each other: one
 ``ProcessBlocks`` of several workers meets them all at every delay chunk, and a
@@ -29,7 +29,7 @@ the development machine; a Drake or Simbody call's worker start-up took 0.22 to
 0.24 s before, 0.02 s after).  A process that has loaded a runtime with threads of
 its own (JAX, warp, torch) must not fork; the workers then start from a fork
 server, which needs the backend class and the model picklable.  A backend built
-inside a function (a fault of :mod:`validation.faults`) is not: it then steps in
+inside a function (a fault of :mod:`validation.faults.catalogue`) is not: it then steps in
 this process, and :attr:`ProcessBlocks.workers` says how many processes ran.
 
 Workers end with their rollout object, at the parent's exit, or, when the
@@ -137,7 +137,7 @@ class ProcessBlocks:
         process.
     one_in_process : with one worker, step in this process (True) or in one worker
         process (False: the caller runs several such blocks on threads, each thread
-        waiting on its own process, :class:`cip.engines.RigidBodyEngine`).
+        waiting on its own process, :class:`cip.engines.rigid_body.RigidBodyEngine`).
     """
 
     def __init__(

@@ -16,7 +16,7 @@ in this order, wherever the law is applied: by numpy on whole chunks
 (:mod:`cip.runner`) and, compiled by numba (:mod:`cipcore.control_kernel`),
 inside the reduced models' kernels, so every engine and the reference apply
 the same rounding.  The warp kernels (float64 in :mod:`reduced.gpu`, float32 in
-:mod:`cip.warp_batch`) cannot call Python; their copy is tested bit-equal to
+:mod:`cip.engines.warp_batch`) cannot call Python; their copy is tested bit-equal to
 this function.
 """
 

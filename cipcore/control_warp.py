@@ -2,7 +2,7 @@
 
 Warp kernels cannot call Python or numba, so the law is written here once more,
 as a generic ``wp.func`` used by both warp kernels: float64 in
-:mod:`reduced.gpu`, float32 in :mod:`cip.warp_batch`.  It evaluates
+:mod:`reduced.gpu`, float32 in :mod:`cip.engines.warp_batch`.  It evaluates
 ``(gain * (1 + noise_scale * xi)) * e_delayed`` in the same order as
 :func:`cipcore.control_law.delayed_random_gain`, and the tests check it
 bit-equal to that function on warp's CPU device in both precisions.  Needs

@@ -20,14 +20,14 @@ from .params import ParameterError
 #: The first entry is the reference every other engine is validated against.
 ENGINES: dict[str, str] = {
     "reduced": "reduced.engine:ENGINE",
-    "mujoco": "cip.engines:MUJOCO",
-    "mjx": "cip.mjx:ENGINE",
-    "drake": "cip.drake:ENGINE",
-    "mujoco-warp": "cip.warp:ENGINE",
+    "mujoco": "cip.engines.rigid_body:MUJOCO",
+    "mjx": "cip.engines.mjx:ENGINE",
+    "drake": "cip.engines.drake:ENGINE",
+    "mujoco-warp": "cip.engines.warp:ENGINE",
     "reduced-gpu": "reduced.gpu:ENGINE",
-    "bullet": "cip.bullet:ENGINE",
-    "exudyn": "cip.exudyn:ENGINE",
-    "simbody": "cip.simbody:ENGINE",
+    "bullet": "cip.engines.bullet:ENGINE",
+    "exudyn": "cip.engines.exudyn:ENGINE",
+    "simbody": "cip.engines.simbody:ENGINE",
 }
 
 REFERENCE = "reduced"

@@ -10,7 +10,7 @@ after a session it reads the next header (a new session, nothing kept from
 the last) until its stdin ends, so cipval starts it once, not once per run
 (``--one-session``: it exits after one, as an engine that does not say so).
 The protocol is documented in cipval's README ("Engines in other programs")
-and in ``cip/process.py``.
+and in ``cip/engines/process.py``.
 
 This engine steps the model MuJoCo ships in the header (``mjb_base64``) with
 ``mujoco.rollout`` (``mj_step`` over each realisation's controls, in C); an

@@ -102,7 +102,7 @@ def pytest_xdist_make_scheduler(config, log):
 def smoke_run_once(tmp_path_factory):
     """One ``cip-validate run --profile smoke`` (figures included) for the whole session:
     (exit status, output directory).  Read it only; copy what a test changes."""
-    from validation.cli import main
+    from validation.cli.main import main
 
     out = tmp_path_factory.mktemp("smoke")
     return main(["run", "--profile", "smoke", "--out", str(out)]), out
@@ -120,8 +120,8 @@ def selftest_run(tmp_path_factory):
     import io
     import json
 
-    from validation import selftest
-    from validation.cli import main
+    from validation.cli.main import main
+    from validation.faults import selftest
 
     junit = tmp_path_factory.mktemp("selftest") / "s.xml"
     calls = []

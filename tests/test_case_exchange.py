@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validation.cli import main
+from validation.cli.main import main
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "case_engine.py"
 
@@ -26,7 +26,7 @@ def case(tmp_path_factory):
 
 
 def test_round_trip_reproduces_the_in_process_checks_bit_for_bit(case):
-    from validation.agreement import instrument_checks
+    from validation.checks.agreement import instrument_checks
     from validation.exchange.case import check_case, load_case
 
     own = dict(np.load(case / "own.npz"))

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from validation import exitcodes
-from validation.cli import main
+from validation.cli import exitcodes
+from validation.cli.main import main
 
 BASELINE = Path(__file__).resolve().parent.parent / "validation" / "data" / "baseline_quick.json"
 
@@ -24,9 +24,9 @@ def canned(monkeypatch):
     def fake_run(profile, out_dir, **kw):
         return copy.deepcopy(box["results"])
 
-    import validation.harness
+    import validation.run
 
-    monkeypatch.setattr(validation.harness, "run_validation", fake_run)
+    monkeypatch.setattr(validation.run, "run_validation", fake_run)
     return box
 
 
@@ -115,12 +115,12 @@ def test_exit_3_when_a_regression_number_moves_grouped_with_relative_change(
 def test_exit_4_when_the_engine_crashes_with_partial_results_naming_the_stage(
     monkeypatch, tmp_path, capsys
 ):
-    import validation.agreement
+    import validation.checks.agreement
 
     def boom(*a, **k):
         raise FloatingPointError("engine returned garbage")
 
-    monkeypatch.setattr(validation.agreement, "series_checks", boom)
+    monkeypatch.setattr(validation.checks.agreement, "series_checks", boom)
     out = tmp_path / "o"
     junit = tmp_path / "r.xml"
     code, _, err = _run(capsys, "run", "--profile", "smoke", "--no-figures", "--out", str(out),
@@ -129,7 +129,7 @@ def test_exit_4_when_the_engine_crashes_with_partial_results_naming_the_stage(
     assert "time-series agreement" in err and "crashed" in err
     r = json.loads((out / "results.json").read_text())
     assert r["partial"] is True
-    from validation.harness import STAGES
+    from validation.run import STAGES
 
     assert r["stages_done"] == list(STAGES[: STAGES.index("time-series agreement")])
     assert r["crashed"]["stage"] == "time-series agreement"
@@ -161,7 +161,7 @@ def test_progress_bars_only_on_a_terminal(monkeypatch):
     import io
     import sys
 
-    from validation.ci_options import progress_enabled
+    from validation.cli.ci_options import progress_enabled
 
     class Tty(io.StringIO):
         def isatty(self):
@@ -194,7 +194,7 @@ def test_an_engine_crash_in_engines_is_exit_4(tmp_path, capsys):
 
 
 def test_a_baseline_of_other_model_files_is_refused_before_the_run(canned, tmp_path, capsys):
-    from validation.fingerprint import model_digests
+    from validation.regression.fingerprint import model_digests
 
     base = json.loads(BASELINE.read_text())
     base["fingerprint"] = {"model_digests": {**model_digests(), "coupled": "0123456789abcdef"}}

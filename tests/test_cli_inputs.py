@@ -14,7 +14,7 @@ import xarray as xr
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from validation.cli import build_parser, main
+from validation.cli.main import build_parser, main
 
 BAD_STUDY = """[study]
 name = "x"
@@ -327,7 +327,7 @@ def test_grid_and_set_combinations_are_refused_exactly_when_they_contradict(grid
     import argparse
 
     from cipcore.params import ParameterError
-    from validation.commands.sweeping import study_from_args
+    from validation.cli.commands.sweeping import study_from_args
 
     def values(k: str, dup: bool) -> str:
         v = VALUES[k] + ([VALUES[k][0]] if dup else [])

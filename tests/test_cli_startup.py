@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from validation.cli import COMMANDS, build_parser, register_function
-from validation.cli_args import CLIParser
+from validation.cli.args import CLIParser
+from validation.cli.main import COMMANDS, build_parser, register_function
 
 ROOT = Path(__file__).resolve().parents[1]
 #: modules a start-up must not import: scipy's heavy submodules, the engines' libraries
@@ -23,7 +23,7 @@ HEAVY = ("scipy.signal", "scipy.stats", "scipy.spatial", "scipy.optimize", "jax"
 
 PROBE = """
 import contextlib, io, json, sys
-from validation.cli import main
+from validation.cli.main import main
 with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
     code = main(sys.argv[2:])
 print(json.dumps([code, sorted(m for m in json.loads(sys.argv[1]) if m in sys.modules)]))

@@ -11,20 +11,20 @@ import pytest
 from cip.mjcf_params import load_model_file, read_mapping, shipped_model_path
 from cipcore.models import MODEL_NAMES
 from cipcore.params import BalanceParams
-from validation.conformance import (
+from validation.checks.conformance import (
     KAPPA_MAX,
     MASS_RATIO_MAX,
     bounded_margin,
     conformance_check,
     conformance_checks,
 )
-from validation.file_faults import (
+from validation.checks.stats import FAIL, PASS
+from validation.faults.file import (
     EQUIVALENT,
     FILE_CATALOGUE,
     make_file_fault,
     write_edited,
 )
-from validation.stats import FAIL, PASS
 
 #: the item of the specification each catalogued file fault must trip
 EXPECTED_ITEM = {
@@ -95,14 +95,14 @@ def test_bounded_margin_admits_known_terms_only_up_to_the_envelope():
 
 # ------------------------------------------------------------------ anchors
 def test_anchors_pass_on_the_shared_code():
-    from validation.anchors import anchor_checks
+    from validation.checks.anchors import anchor_checks
 
     for c in anchor_checks(seed=3):
         assert c.status == PASS, (c.name, c.values)
 
 
 def test_stability_boundary_matches_alpha_times_one_plus_mass_ratio():
-    from validation.anchors import full_boundary, reduced_boundary
+    from validation.checks.anchors import full_boundary, reduced_boundary
 
     assert reduced_boundary("single") == pytest.approx(22.0, abs=1e-8)
     m = load_model_file(shipped_model_path("coupled"))
@@ -113,8 +113,8 @@ def test_stability_boundary_matches_alpha_times_one_plus_mass_ratio():
 
 @pytest.mark.parametrize("seed", [1, 7, 11])
 def test_shared_noise_scale_is_caught_by_the_gain_variance_anchor(seed):
-    from validation.anchors import gain_variance_check
-    from validation.shared_faults import SHARED_FAULT_TYPES
+    from validation.checks.anchors import gain_variance_check
+    from validation.faults.shared import SHARED_FAULT_TYPES
 
     assert gain_variance_check(seed).status == PASS
     with SHARED_FAULT_TYPES["shared_noise_scale"](0.1).applied():
@@ -123,8 +123,8 @@ def test_shared_noise_scale_is_caught_by_the_gain_variance_anchor(seed):
 
 
 def test_shared_alpha_is_caught_and_restored():
-    from validation.anchors import paper_constants_check
-    from validation.shared_faults import SHARED_FAULT_TYPES
+    from validation.checks.anchors import paper_constants_check
+    from validation.faults.shared import SHARED_FAULT_TYPES
 
     with SHARED_FAULT_TYPES["shared_alpha"](0.01).applied():
         assert BalanceParams(beta=1.0).alpha == pytest.approx(22.22)
@@ -137,7 +137,7 @@ def test_shared_alpha_is_caught_and_restored():
 def test_beta_star_tolerance_is_a_t_quantile_of_the_corrected_se_plus_precision():
     from scipy.stats import t
 
-    from validation.paper import beta_star_tolerance
+    from validation.paper.claims import beta_star_tolerance
 
     tol = beta_star_tolerance(0.1, 16, 5e-4)
     assert tol == pytest.approx(t.ppf(1 - 5e-4, 15) * 0.1 * math.sqrt(16 / 15) + 5e-4)
@@ -146,7 +146,7 @@ def test_beta_star_tolerance_is_a_t_quantile_of_the_corrected_se_plus_precision(
 
 @pytest.mark.parametrize("value", ["-1", "x", "1.5"])
 def test_run_seed_must_be_a_nonnegative_integer(capsys, value, tmp_path):
-    from validation.cli import main
+    from validation.cli.main import main
 
     code = main(["run", "--profile", "smoke", "--seed", value, "--out", str(tmp_path)])
     assert code == 2
@@ -155,7 +155,7 @@ def test_run_seed_must_be_a_nonnegative_integer(capsys, value, tmp_path):
 
 
 def test_a_run_whose_engine_leaves_the_regime_while_the_reference_stays_is_listed():
-    from validation.harness import _divergence
+    from validation.run import _divergence
 
     scan = [
         {"model": "single", "amplitude": 1e-3, "small_angle": True, "fell": True,

@@ -24,8 +24,8 @@ from cipcore.registry import availability, get_engine
 if importlib.util.find_spec("pydrake") is None:
     pytest.skip("pydrake is not installed (pip install 'cipval[drake]')", allow_module_level=True)
 
-from cip.drake import DrakeRollout
-from cip.drake_plant import build_plant, geometry_from_mujoco
+from cip.engines.drake import DrakeRollout
+from cip.engines.drake_plant import build_plant, geometry_from_mujoco
 
 P = BalanceParams(beta=20.306)
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS

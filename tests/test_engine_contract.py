@@ -1,6 +1,6 @@
 """One contract for every registered engine (skipped, with the reason, where unavailable).
 
-The checks live in the installed package (:mod:`validation.contract`, also
+The checks live in the installed package (:mod:`validation.checks.contract`, also
 ``cip-validate contract --engine NAME`` for an engine's own CI); this file runs
 them for every registered engine.  Against the reduced reference under the same
 noise draws each engine must: reproduce the reduced trajectory within its
@@ -19,7 +19,7 @@ from helpers import engine_or_skip
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams
 from cipcore.registry import REFERENCE, declared_engines, engine_names, get_engine
-from validation import contract
+from validation.checks import contract
 
 P = BalanceParams(beta=20.306)
 
@@ -91,7 +91,7 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
     """`cip-validate engines --json`, smoke size: verdicts, throughputs, skips with reasons."""
     import json
 
-    from validation.cli import main
+    from validation.cli.main import main
 
     rc = main(["engines", "--engines", "reduced,mujoco", "--profile", "smoke", "--json",
                "--out", str(tmp_path), "--no-figures"])  # fmt: skip
@@ -116,7 +116,7 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
 
 def assert_tables_well_formed(md: str) -> None:
     """Every row of every Markdown table has the header's cell count, no cell empty."""
-    from validation.report import markdown_tables
+    from validation.report.document import markdown_tables
 
     tables = markdown_tables(md)
     assert tables
@@ -128,7 +128,7 @@ def assert_tables_well_formed(md: str) -> None:
 
 
 def test_engines_command_rejects_an_unknown_engine(capsys) -> None:
-    from validation.cli import main
+    from validation.cli.main import main
 
     assert main(["engines", "--engines", "reduced,nosuchengine"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -23,9 +23,9 @@ from cip.simulate import simulate_full
 from cipcore import registry
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
-from validation.agreement import instrument_checks
-from validation.faults import Fault, make_fault
-from validation.stats import FAIL
+from validation.checks.agreement import instrument_checks
+from validation.checks.stats import FAIL
+from validation.faults.catalogue import Fault, make_fault
 
 FAMILIES = ("bullet", "exudyn", "simbody")
 P = BalanceParams(beta=20.306)
@@ -115,7 +115,7 @@ def test_one_step_delay_error_fails_the_run_checks(name, monkeypatch) -> None:
 
 def test_exudyn_state_map_round_trips() -> None:
     pytest.importorskip("exudyn")
-    from cip.exudyn import ExudynRollout
+    from cip.engines.exudyn import ExudynRollout
 
     m = build("coupled", CIPParams())
     b = ExudynRollout(m, 1, 1)
@@ -128,7 +128,7 @@ def test_exudyn_state_map_round_trips() -> None:
 
 def test_exudyn_refuses_a_bob_of_finite_radius() -> None:
     pytest.importorskip("exudyn")
-    from cip.exudyn import ExudynRollout
+    from cip.engines.exudyn import ExudynRollout
     from cipcore.params import ParameterError
 
     with pytest.raises(ParameterError, match="point mass"):
@@ -163,7 +163,7 @@ def test_engines_json_stays_parseable_when_an_engine_prints_a_banner(tmp_path, c
     """warp announces its devices on stdout when first imported; ``--json`` keeps it out."""
     import json
 
-    from validation.cli import main
+    from validation.cli.main import main
 
     rc = main(["engines", "--engines", "reduced,mujoco-warp", "--profile", "smoke", "--json",
                "--out", str(tmp_path), "--no-figures"])  # fmt: skip

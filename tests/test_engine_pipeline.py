@@ -10,9 +10,9 @@ from cip.mjcf_params import read_mapping
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
 from reduced.twin import TwinParams, simulate_twin
-from validation.agreement import instrument_checks, model_file
-from validation.faults import make_fault
-from validation.metrics import relative_l2
+from validation.checks.agreement import instrument_checks, model_file
+from validation.checks.metrics import relative_l2
+from validation.faults.catalogue import make_fault
 
 BETA = {"single": 20.306, "coupled": 21.032}
 
@@ -62,7 +62,7 @@ def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
 def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: str, size: float):
     """A one-step-late delay, +1 % cart damping and +0.5 % pole length in the single model,
     injected into the engine, fail the checks `run --engine` and `engines` both run
-    (:func:`validation.agreement.series_checks` runs them for both).  MJX reuses its
+    (:func:`validation.checks.agreement.series_checks` runs them for both).  MJX reuses its
     compiled step for the model edits; MuJoCo Warp runs on warp's CPU device only with
     CIPVAL_WARP_DEVICE=cpu (else skipped with the reason)."""
     engine_or_skip(name)
@@ -89,7 +89,7 @@ def test_a_fault_an_engine_cannot_have_is_not_applicable() -> None:
 
 
 def test_run_refuses_what_the_engine_cannot_do(capsys) -> None:
-    from validation.cli import main
+    from validation.cli.main import main
 
     for argv, text in (
         (["run", "--engine", "reduced"], "not a rigid-body engine"),
@@ -102,7 +102,7 @@ def test_run_refuses_what_the_engine_cannot_do(capsys) -> None:
 
 
 def test_integrator_is_set_in_the_model_file_and_refused_where_fixed(capsys) -> None:
-    from validation.cli import main
+    from validation.cli.main import main
 
     m = model_file("single", None, "RK4")
     assert read_mapping(m).integrator == "RK4"
@@ -114,7 +114,7 @@ def test_integrator_is_set_in_the_model_file_and_refused_where_fixed(capsys) -> 
 
 def test_a_baseline_of_another_engine_is_refused(tmp_path, capsys) -> None:
     """A regression run compares an engine with a baseline of the same engine and integrator."""
-    from validation.cli import main
+    from validation.cli.main import main
 
     argv = ["run", "--baseline", "validation/data/baseline_quick.json", "--out", str(tmp_path)]
     assert main([*argv, "--integrator", "RK4"]) == 2
@@ -158,7 +158,7 @@ def test_mjx_declares_its_constraint_solve_and_meets_mujoco_at_small_amplitude()
     """MJX runs one Newton iteration per step (declared in its capabilities), as MuJoCo on
     the CPU takes; with the file's tolerance it took none at 1e-8 m (4e-4 off the twin)."""
     eng = engine_or_skip("mjx")
-    from cip.mjx import SOLVER_ITERATIONS, solver_model
+    from cip.engines.mjx import SOLVER_ITERATIONS, solver_model
 
     m = model_file("coupled")
     s = solver_model(m)

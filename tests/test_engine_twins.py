@@ -6,7 +6,7 @@ rod; Bullet: semi-implicit Euler with its velocity-level rod row); at 1e-6 m the
 engine matches that twin to its declared ``twin_tolerance``, while the twin of
 another discretisation (semi-implicit Euler with MuJoCo's soft rod, what these
 engines were held to before they declared theirs) is orders of magnitude off.
-The rod's stretch is held by :func:`validation.rod_check.rod_check`.  A one-step
+The rod's stretch is held by :func:`validation.checks.rod.rod_check`.  A one-step
 delay error at each engine's boundary fails the twin check in
 ``tests/test_engine_families.py``.
 """
@@ -22,11 +22,11 @@ from cip.mjcf_params import read_mapping
 from cipcore.params import BalanceParams
 from cipcore.registry import availability, get_engine
 from reduced.twin import TwinParams, simulate_twin
-from validation.agreement import model_file
-from validation.metrics import relative_l2
+from validation.checks.agreement import model_file
+from validation.checks.metrics import relative_l2
+from validation.checks.rod import rod_check
+from validation.checks.stats import FAIL, PASS
 from validation.profiles import PAPER_BETA
-from validation.rod_check import rod_check
-from validation.stats import FAIL, PASS
 
 FAMILIES = ("bullet", "exudyn", "simbody")
 AMPLITUDE = 1e-6  # m, the twin check's amplitude
@@ -104,8 +104,8 @@ def test_a_soft_twin_rod_is_compared_by_relative_distance() -> None:
 def test_a_model_the_engine_refuses_counts_as_flagged_in_the_selftest() -> None:
     """Exudyn's point-mass bob refuses the bob-inertia fault with a one-line error; the
     selftest counts the refusal as the fault flagged (it cannot pass unnoticed)."""
-    from validation.faults import make_fault
-    from validation.selftest import flagged_by
+    from validation.faults.catalogue import make_fault
+    from validation.faults.selftest import flagged_by
 
     _engine("exudyn")
     by = flagged_by(make_fault("bob_inertia", 1e-4), 1, 1, "exudyn")

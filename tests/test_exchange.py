@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 from helpers import running
 
-from validation.cli import main
+from validation.cli.main import main
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "chunk_engine.py"
 CMD = shlex.join([sys.executable, str(EXAMPLE)])
 
 
 def test_example_engine_is_bit_identical_to_mujoco_in_process():
-    from cip.process import process_engine
+    from cip.engines.process import process_engine
     from cipcore.params import BalanceParams
     from cipcore.registry import get_engine
 
@@ -36,7 +36,7 @@ def test_an_engine_serving_many_sessions_is_started_once_and_ended_with_cipval()
     nobody; closing the kept engines ends them (no process left behind)."""
     import os
 
-    from cip.process import close_idle_engines, idle_engines, process_engine
+    from cip.engines.process import close_idle_engines, idle_engines, process_engine
     from cipcore.params import BalanceParams
     from cipcore.registry import get_engine
 
@@ -66,8 +66,8 @@ def test_a_session_cut_mid_frame_is_not_kept_and_a_dead_kept_engine_is_replaced(
 
     import mujoco
 
+    from cip.engines.process import close_idle_engines, idle_engines, process_engine
     from cip.model import mjcf
-    from cip.process import close_idle_engines, idle_engines, process_engine
     from cipcore.params import BalanceParams
 
     close_idle_engines()
@@ -109,7 +109,7 @@ def test_kept_engines_end_when_cipval_is_killed():
 
     code = (
         "import sys, time\n"
-        "from cip.process import idle_engines, process_engine\n"
+        "from cip.engines.process import idle_engines, process_engine\n"
         "from cipcore.params import BalanceParams\n"
         f"cmd = {CMD!r}\n"
         "process_engine(cmd).simulate('single', BalanceParams(beta=21.032), 0.2, 1, seed=1)\n"
@@ -192,8 +192,8 @@ def test_run_checks_pass_for_the_example_and_fail_with_a_one_step_delay_error():
     same program one step late fails the twin and measures 101 steps."""
     import argparse
 
-    from validation.agreement import instrument_checks
-    from validation.engine_options import check_engine_options
+    from validation.checks.agreement import instrument_checks
+    from validation.cli.engine_options import check_engine_options
 
     for command, good in ((CMD, True), (f"{CMD} --delay-error", False)):
         a = argparse.Namespace(engine=None, engine_cmd=command, integrator=None)

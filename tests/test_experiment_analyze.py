@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from validation.cli import main
+from validation.cli.main import main
 from validation.experiment.analysis import analyse_directory, duplicates, table
 from validation.experiment.bot import BotSpec
 from validation.experiment.headless import run_bot_trial

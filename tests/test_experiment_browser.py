@@ -49,7 +49,7 @@ def server(tmp_path_factory):
     out = tmp_path_factory.mktemp("recordings")
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "validation.cli", "experiment", "serve", "--port", "0",
+        [sys.executable, "-m", "validation.cli.main", "experiment", "serve", "--port", "0",
          "--out", str(out), "--trial-duration", str(DURATION), "--countdown", "1"],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
     )  # fmt: skip

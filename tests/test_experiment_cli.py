@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from validation.cli import main
+from validation.cli.main import main
 
 
 @pytest.mark.parametrize(

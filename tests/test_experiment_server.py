@@ -184,7 +184,7 @@ def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
     """Issue 13: a killed server keeps all but (at most) the last second of samples."""
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "validation.cli", "experiment", "serve", "--port", "0",
+        [sys.executable, "-m", "validation.cli.main", "experiment", "serve", "--port", "0",
          "--out", str(tmp_path), "--trial-duration", "600", "--countdown", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
     )  # fmt: skip
@@ -224,7 +224,7 @@ def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
 def test_sigterm_finalises_the_running_trial(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "validation.cli", "experiment", "serve", "--port", "0",
+        [sys.executable, "-m", "validation.cli.main", "experiment", "serve", "--port", "0",
          "--out", str(tmp_path), "--countdown", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
     )  # fmt: skip

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from validation.cli import main
-from validation.report import compare_with_baseline
-from validation.stats import FAIL, INCONCLUSIVE, PASS, ci_overlap, paired_equivalence
+from validation.checks.stats import FAIL, INCONCLUSIVE, PASS, ci_overlap, paired_equivalence
+from validation.cli.main import main
+from validation.report.document import compare_with_baseline
 
 
 @pytest.fixture(scope="module")
@@ -116,8 +116,8 @@ def _start_run(out, *extra):
     import subprocess
     import sys
 
-    cmd = [sys.executable, "-m", "validation.cli", "run", "--profile", "smoke", "--out", str(out),
-           *extra]  # fmt: skip
+    cmd = [sys.executable, "-m", "validation.cli.main", "run", "--profile", "smoke",
+           "--out", str(out), *extra]  # fmt: skip
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -146,7 +146,7 @@ def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tm
     process, SIGINT, and resumes to the end.)"""
     import signal
 
-    from validation.harness import STAGES
+    from validation.run import STAGES
 
     out = tmp_path / "interrupted"
     # without the figures' process (the slow version keeps it): the stages alone
@@ -171,7 +171,7 @@ def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tm
 def test_sigint_and_sigterm_keep_every_finished_stage_and_resume_completes(smoke_run, tmp_path):
     import signal
 
-    from validation.harness import STAGES
+    from validation.run import STAGES
 
     out = tmp_path / "interrupted"
     code, err, kept = _interrupt_after(_start_run(out), out, 2, signal.SIGINT)
@@ -207,7 +207,7 @@ def test_sigint_and_sigterm_keep_every_finished_stage_and_resume_completes(smoke
 def test_divergence_of_the_stages_is_listed_per_run_and_point():
     import xarray as xr
 
-    from validation.harness import _divergence
+    from validation.run import _divergence
 
     t = np.full((2, 2, 3), np.nan)
     t[1, 0, 2] = 4.5  # l/L = 2, amplitude 1e-3, realisation 2 diverged at 4.5 s

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from validation.metrics import (
+from validation.checks.metrics import (
     density,
     density_ratio_near_zero,
     dominant_peaks,
     stcc,
     stcc_significance_bartlett,
 )
-from validation.stats import bootstrap_ratio_ci, heavy_tailed_summary
+from validation.checks.stats import bootstrap_ratio_ci, heavy_tailed_summary
 
 DT = 0.005
 

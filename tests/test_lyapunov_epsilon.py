@@ -4,7 +4,7 @@
 ``benettin_epsilon`` (1e-7 m), a float32 engine runs at
 ``benettin_epsilon_float32`` (5e-4 m): float32 resolves the coupled rod's length
 only to about ulp(1 m) = 1.2e-7 m, so at 1e-7 m the rod's constraint force is
-round-off in the tangent dynamics (``validation.agreement.FLOAT32_EPSILON_RULE``).
+round-off in the tangent dynamics (``validation.checks.agreement.FLOAT32_EPSILON_RULE``).
 The MuJoCo Warp test carries the ``warp`` marker (CI runs it on warp's CPU
 device, ``CIPVAL_WARP_DEVICE=cpu pytest -m warp``; about 20 s there).
 """
@@ -19,8 +19,8 @@ from helpers import engine_or_skip
 from cip.mjcf_params import read_mapping
 from cipcore.registry import get_engine
 from reduced import BalanceParams
-from validation import agreement
-from validation.agreement import lyapunov_checks, model_file
+from validation.checks import agreement
+from validation.checks.agreement import lyapunov_checks, model_file
 from validation.profiles import PROFILES
 
 

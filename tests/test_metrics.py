@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from validation.metrics import (
+from validation.checks.metrics import (
     first_dominant_peak,
     fit_two_power_laws,
     laminar_phases,
@@ -120,7 +120,7 @@ def test_laminar_phase_durations_and_exponent():
 
 def test_bootstrap_broken_lines_fitted_at_once_equal_one_at_a_time():
     """The bootstrap's broken lines, fitted in one pass, are the one-by-one fits to rounding."""
-    from validation.metrics import _broken_line, _broken_lines, _log_bins
+    from validation.checks.metrics import _broken_line, _broken_lines, _log_bins
 
     rng = np.random.default_rng(3)
     f = np.linspace(0.02, 30.0, 2000)
@@ -135,7 +135,7 @@ def test_bootstrap_broken_lines_fitted_at_once_equal_one_at_a_time():
 
 def test_stcc_and_its_bartlett_level_do_not_depend_on_the_number_of_threads(monkeypatch):
     """Lags (STCC) and realisations (Bartlett) are spread over threads: same numbers for 1 or 4."""
-    import validation.metrics as m
+    import validation.checks.metrics as m
 
     rng = np.random.default_rng(8)
     x, y = rng.standard_normal((2, 3, 4000)).cumsum(-1)

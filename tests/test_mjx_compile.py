@@ -21,7 +21,7 @@ LOWERING = "/jax/core/compile/jaxpr_to_mlir_module_duration"
 
 
 def test_bucket_sizes():
-    from cip.mjx import bucket
+    from cip.engines.mjx import bucket
 
     assert [bucket(n) for n in (1, 3, 4, 5, 8, 9, 1024, 1025, 3000)] == [
         4, 4, 4, 8, 8, 16, 1024, 2048, 3072,
@@ -31,7 +31,7 @@ def test_bucket_sizes():
 def test_second_batch_size_compiles_nothing_new_and_padding_is_exact(monkeypatch):
     import jax
 
-    from cip import mjx
+    from cip.engines import mjx
 
     engine = get_engine("mjx")
     if engine.unavailable():
@@ -68,7 +68,7 @@ def test_a_later_process_reads_the_exported_chunk_instead_of_tracing(monkeypatch
     """The traced chunk is written once (``jax.export``) and read back by the next process,
     which gets the same numbers; its key holds across processes (no object addresses);
     a damaged file is written again."""
-    from cip import mjx
+    from cip.engines import mjx
 
     engine = get_engine("mjx")
     if engine.unavailable():

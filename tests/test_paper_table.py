@@ -7,9 +7,9 @@ import re
 import numpy as np
 import pytest
 
-from validation import paper
+from validation.paper import claims as paper
 from validation.profiles import PROFILES
-from validation.report import markdown, paper_section
+from validation.report.document import markdown, paper_section
 
 
 def _table_rows(md: str) -> list[list[str]]:

@@ -17,9 +17,9 @@ WORKER_ENGINES = ("drake", "bullet", "exudyn", "simbody")
 @pytest.fixture
 def always_workers(monkeypatch):
     """Worker processes however small the run (the tests' runs are below the threshold)."""
-    import cip.engines
+    import cip.engines.rigid_body
 
-    monkeypatch.setattr(cip.engines, "MIN_WORKER_STEPS", 0)
+    monkeypatch.setattr(cip.engines.rigid_body, "MIN_WORKER_STEPS", 0)
 
 
 @pytest.mark.parametrize("name", WORKER_ENGINES)
@@ -66,7 +66,7 @@ def test_a_split_from_the_fork_server_is_bit_identical(monkeypatch, always_worke
 def test_workers_follow_threads_and_end_with_the_rollout():
     import gc
 
-    from cip.drake import DrakeRollout
+    from cip.engines.drake import DrakeRollout
     from cip.model import CIPParams, build
     from cip.workers import ProcessBlocks
 
@@ -211,7 +211,7 @@ def test_engine_threads_reach_the_worker_processes(monkeypatch):
     realisation-steps starts none."""
     import threading
 
-    import cip.engines
+    import cip.engines.rigid_body
     from cip import workers
 
     engine = engine_or_skip("drake")
@@ -226,7 +226,7 @@ def test_engine_threads_reach_the_worker_processes(monkeypatch):
     params = BalanceParams(beta=20.0, tau=0.01, dt=1e-3)
     engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
     assert built == []  # 80 realisation-steps: cheaper than starting a worker
-    monkeypatch.setattr(cip.engines, "MIN_WORKER_STEPS", 80)
+    monkeypatch.setattr(cip.engines.rigid_body, "MIN_WORKER_STEPS", 80)
     engine.simulate("single", params, 0.02, 4, seed=3, threads=2, progress=False)
     main = threading.main_thread().name
     assert built == [(2, 1, main), (2, 1, main)]  # two blocks, a process each

@@ -15,8 +15,8 @@ from cip.simulate import simulate_full
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import get_engine
 from reduced.twin import TwinParams, simulate_twin
-from validation.agreement import instrument_checks, measured_delay
-from validation.faults import CATALOGUE, make_fault
+from validation.checks.agreement import instrument_checks, measured_delay
+from validation.faults.catalogue import CATALOGUE, make_fault
 
 BETA = {"single": 20.306, "coupled": 21.032}
 TWIN_TOLERANCE = get_engine("mujoco").twin_tolerance_for("coupled")
@@ -116,8 +116,8 @@ def test_selftest_flags_every_catalogued_fault(selftest_run):
     session's `cip-validate selftest` run: run_selftest(seed=1, n_realizations=2))."""
     code, doc, _, args, (clean, rows) = selftest_run
     assert args == (1, 2, None, "mujoco", None) and code == 0 and doc["pass"] is True
-    from validation.file_faults import FILE_CATALOGUE
-    from validation.shared_faults import SHARED_CATALOGUE
+    from validation.faults.file import FILE_CATALOGUE
+    from validation.faults.shared import SHARED_CATALOGUE
 
     assert clean == []
     assert len([r for r in rows if "path" not in r]) == len(CATALOGUE)
@@ -127,7 +127,7 @@ def test_selftest_flags_every_catalogued_fault(selftest_run):
 
 
 def test_paired_rules_use_the_paired_uncertainty():
-    from validation.stats import needed_realizations, paired_equivalence, paired_shift
+    from validation.checks.stats import needed_realizations, paired_equivalence, paired_shift
 
     rng = np.random.default_rng(0)
     base = rng.normal(0, 1, 16)  # the spread across realisations: large
@@ -144,7 +144,7 @@ def test_paired_rules_use_the_paired_uncertainty():
 
 
 def test_baseline_mode_follows_what_changes_numbers_not_the_kernel_string():
-    from validation.baseline import BaselineMismatch, choose_mode
+    from validation.regression.baseline import BaselineMismatch, choose_mode
 
     fp = {"machine": "x86_64", "cpu_flags": ["avx2", "fma"], "numpy_build": {"blas": "b"},
           "blas_kernels": ["openblas 0.3.31 SkylakeX"],
@@ -175,7 +175,7 @@ def test_baseline_mode_follows_what_changes_numbers_not_the_kernel_string():
 
 
 def test_roundoff_mode_compares_every_number_to_its_stated_tolerance():
-    from validation.baseline import ROUNDOFF_RTOL, all_numbers, compare_with_baseline
+    from validation.regression.baseline import ROUNDOFF_RTOL, all_numbers, compare_with_baseline
 
     base = {"checks": [{"name": "c", "values": {"x": 1.0, "d": 3e-15, "measured_steps": 100}}]}
     near = {"checks": [{"name": "c", "values": {"x": 1.0 + ROUNDOFF_RTOL / 2, "d": -2e-15,
@@ -194,7 +194,11 @@ def test_a_difference_beside_its_operands_is_held_to_their_round_off():
     operands moved by round-off (measured between OpenBLAS's Haswell and SkylakeX
     kernels); the same move of a difference recorded without its operands, or a move
     far beyond the operands' round-off, fails."""
-    from validation.baseline import ROUNDOFF_RTOL, compare_with_baseline, difference_scales
+    from validation.regression.baseline import (
+        ROUNDOFF_RTOL,
+        compare_with_baseline,
+        difference_scales,
+    )
 
     def run(full, red, with_operands=True):
         v = {"difference": full - red, "tolerance": 0.05}
@@ -223,8 +227,8 @@ def test_selftest_cli(selftest_run, monkeypatch, capsys):
     """`selftest --faults gravity` in text: the real run_selftest runs the unmodified model
     and the gravity fault only; their verdicts (which checks fail) are replayed from the
     session's whole-catalogue run (same seed, realisations and engine)."""
-    from validation import selftest, selftest_paths
-    from validation.cli import main
+    from validation.cli.main import main
+    from validation.faults import selftest, selftest_paths
 
     _, _, _, args, (clean, rows) = selftest_run
     by = {r["fault"]: r["by"] for r in rows if "path" not in r}
@@ -247,7 +251,7 @@ def test_selftest_cli(selftest_run, monkeypatch, capsys):
 
 
 def test_run_refuses_a_bad_model_file_before_running(tmp_path, capsys):
-    from validation.cli import main
+    from validation.cli.main import main
 
     f = tmp_path / "dt.xml"
     f.write_text(mjcf("single", CIPParams(timestep=2e-3)))

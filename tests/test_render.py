@@ -9,12 +9,12 @@ import sys
 import numpy as np
 import pytest
 
-from validation.cli import main
+from validation.cli.main import main
 
 
 def test_render_writes_a_gif_of_the_run(tmp_path):
     gif = tmp_path / "run.gif"
-    cmd = [sys.executable, "-m", "validation.cli", "render", "--model", "coupled", "--beta",
+    cmd = [sys.executable, "-m", "validation.cli.main", "render", "--model", "coupled", "--beta",
            "21.032", "--amplitude", "0.05", "--duration", "0.5", "--fps", "20", "--width", "160",
            "--height", "120", "--out", str(gif)]  # fmt: skip
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -46,9 +46,9 @@ def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys
     """The run's figures stage renders two clips and the HTML report embeds them as GIFs."""
     import dataclasses
 
-    from validation.harness import clips
     from validation.profiles import PROFILES
-    from validation.report import figure_lines, html_report
+    from validation.report.document import figure_lines, html_report
+    from validation.run import clips
 
     prof = dataclasses.replace(PROFILES["quick"], clip_duration=0.4)
     files = clips(tmp_path, prof)
@@ -76,7 +76,7 @@ def test_report_clips_inside_and_outside_the_small_angle_regime(tmp_path, capsys
 def test_clip_overlay_names_time_angles_errors_engine_and_regime():
     """The overlay's text per frame, and that it is drawn (no OpenGL needed)."""
     from cipcore.schema import Trajectory
-    from validation.animation import draw_overlay, overlay_lines
+    from validation.report.animation import draw_overlay, overlay_lines
 
     t = np.array([0.0, 0.5, 1.0])
     th = np.array([[[0.01, -0.02], [0.1, 0.05], [2.0, 0.3]]])  # inside, outside, fallen
@@ -101,7 +101,7 @@ def _whole_frame_overlay(frame, lines, regime):
     """The overlay composited over the whole frame (the reference for the region-only one)."""
     from PIL import Image, ImageDraw
 
-    from validation.animation import REGIME_COLOURS, _overlay_font
+    from validation.report.animation import REGIME_COLOURS, _overlay_font
 
     img = Image.fromarray(frame).convert("RGBA")
     size = max(9, round(frame.shape[0] / 26))
@@ -121,7 +121,7 @@ def _whole_frame_overlay(frame, lines, regime):
 def test_overlay_over_its_region_equals_the_whole_frame_composite(shape):
     """Descenders, a last line wider than the others, text running off a small frame:
     the same pixels as compositing the whole frame, every other pixel untouched."""
-    from validation.animation import draw_overlay
+    from validation.report.animation import draw_overlay
 
     frame = np.random.default_rng(5).integers(0, 256, (*shape, 3), dtype=np.uint8)
     lines = ["t =  12.35 s      engine mujoco, coupled model", "gjpqy |theta| (rad)",

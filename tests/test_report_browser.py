@@ -34,7 +34,7 @@ def smoke_run(smoke_run_once):
 
 
 def _stage_state(out: Path) -> dict:
-    from validation.harness import STAGES
+    from validation.run import STAGES
 
     state = {}
     for name in STAGES[:-1]:
@@ -66,7 +66,7 @@ def test_every_figure_has_a_caption_naming_the_run_and_the_paper_figure(smoke_ru
 
 
 def test_report_tables_are_well_formed_and_settings_compact(smoke_run):
-    from validation.report import markdown_tables
+    from validation.report.document import markdown_tables
 
     out, _ = smoke_run
     md = (out / "report.md").read_text()
@@ -91,8 +91,8 @@ def test_every_panel_has_a_title_and_a_legend_and_positive_axes(smoke_run, tmp_p
     import matplotlib.pyplot as plt
     from matplotlib.figure import Figure
 
-    from validation.harness import _figures
     from validation.profiles import PROFILES
+    from validation.run import _figures
 
     out, _ = smoke_run
     kept = []
@@ -129,8 +129,8 @@ def test_rms_beyond_the_pendulum_length_is_counted_as_diverged(tmp_path, monkeyp
     """Synthetic heavy tail: the figure and the divergence list count the same realisations."""
     import matplotlib.pyplot as plt
 
-    from validation.divergence import group_lines, rms_divergence
-    from validation.plots import fig_rms
+    from validation.checks.divergence import group_lines, rms_divergence
+    from validation.report.plots import fig_rms
 
     length = 0.446
     rng = np.random.default_rng(1)
@@ -153,7 +153,7 @@ def test_rms_beyond_the_pendulum_length_is_counted_as_diverged(tmp_path, monkeyp
 
 
 def test_intended_divergence_is_one_line():
-    from validation.divergence import group_lines
+    from validation.checks.divergence import group_lines
 
     why = "fell (|theta| > pi/2): largest |theta| 3.14 rad (intended: the scan looks for the "
     scan = [{"stage": "amplitude scan", "run": f"{m} amplitude {a:g} m", "intended": True,
@@ -209,7 +209,7 @@ def test_report_in_chromium_shows_captioned_non_empty_figures(smoke_run, tmp_pat
 
 def test_paper_labels_become_printed_numbers():
     """Numbers from the order of the paper's captions (Fig. 4 is the one its text calls 4(a))."""
-    from validation.paper_refs import printed
+    from validation.paper.refs import printed
 
     assert printed("section 3.2, Figs. Be, rms") == "section 3.2, Figs. 4, 6"
     assert printed("Fig. sccpeak:pdf (100 realisations)") == "Fig. 10 (100 realisations)"
@@ -225,7 +225,7 @@ def test_figures_keep_the_report_order_though_drawn_as_their_stages_finish(smoke
     """The figure process draws each paper figure as soon as its stages are done (so in
     another order); the report lists them in the paper's order, rod-length figures
     after, and no job file is left behind."""
-    from validation.figure_worker import PAPER_FIGURES, ROD_METRICS
+    from validation.report.figures import PAPER_FIGURES, ROD_METRICS
 
     out, results = smoke_run
     names = [Path(f).name for f in results["figures"]]

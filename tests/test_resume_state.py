@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from validation import harness
-from validation.harness import MODEL_FILE_STAGES, STAGES, run_validation
+from validation import run as harness
 from validation.profiles import PROFILES
+from validation.run import MODEL_FILE_STAGES, STAGES, run_validation
 
 
 @pytest.fixture
@@ -157,7 +157,7 @@ def test_figure_child_process_draws_the_rod_length_figures_after_the_paper_job(t
 
 
 def test_each_paper_figure_is_ready_once_the_stages_it_draws_are_done():
-    from validation.figure_worker import PAPER_FIGURES
+    from validation.report.figures import PAPER_FIGURES
 
     assert set(harness.FIGURE_DATA_STAGES.values()) <= set(harness.STAGES)
     assert {k for keys in PAPER_FIGURES.values() for k in keys} == set(harness.FIGURE_DATA_STAGES)
@@ -172,7 +172,7 @@ def test_each_paper_figure_is_ready_once_the_stages_it_draws_are_done():
 
 def test_an_unknown_paper_figure_name_is_refused(tmp_path):
     pytest.importorskip("matplotlib")
-    from validation import plots
+    from validation.report import plots
 
     with pytest.raises(ValueError, match="no paper figure named"):
         plots.paper_figures(tmp_path, only=["fig_nonesuch.png"])

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from validation.cli import main
+from validation.cli.main import main
 from validation.schemas import SCHEMAS, SchemaError, load_schema, validate
 
 

@@ -5,7 +5,7 @@ series at the profile's ``amplitude`` (1e-8 m), a float32 engine at
 ``amplitude_float32``: float32's round-off against the series falls as
 1/amplitude, so it is the largest amplitude at which the rigid body's nonlinear
 residual keeps float64 MuJoCo's twin metrics within their floor
-(``validation.agreement.FLOAT32_AMPLITUDE_RULE``).  The two tests that run
+(``validation.checks.agreement.FLOAT32_AMPLITUDE_RULE``).  The two tests that run
 engines check both sides of that rule; they carry the ``warp`` marker (CI runs
 them on warp's CPU device, ``CIPVAL_WARP_DEVICE=cpu pytest -m warp``): MuJoCo
 Warp there takes minutes, the float64 side about a minute.
@@ -16,7 +16,7 @@ from __future__ import annotations
 import pytest
 from helpers import engine_or_skip
 
-from validation.agreement import (
+from validation.checks.agreement import (
     compare_series,
     run_pair,
     run_twin,

@@ -77,7 +77,7 @@ seed = 5
 beta = [20.0, 20.5, 21.0, 21.5, 22.0, 22.5, 23.0, 23.5, 24.0, 24.5, 25.0, 25.5]
 """)
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "validation.cli", "sweep", str(study_file), "--out", str(out),
+    cmd = [sys.executable, "-m", "validation.cli.main", "sweep", str(study_file), "--out", str(out),
            "--workers", "1"]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             start_new_session=True)  # fmt: skip
@@ -185,7 +185,7 @@ def test_two_studies_raced_into_one_directory_never_mix(tmp_path, durations):
     out = tmp_path / "shared"
     procs = {
         name: subprocess.Popen(
-            [sys.executable, "-m", "validation.cli", "sweep", str(f), "--out", str(out),
+            [sys.executable, "-m", "validation.cli.main", "sweep", str(f), "--out", str(out),
              "--workers", "1"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )

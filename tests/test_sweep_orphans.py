@@ -55,7 +55,7 @@ def kill_and_count(cmd: list[str], ready, tmp_path: Path) -> tuple[int, dict]:
 
 
 def test_kill_9_of_a_local_sweep_leaves_no_process(tmp_path):
-    cmd = [sys.executable, "-m", "validation.cli", "sweep", "--engine", "reduced", "--grid",
+    cmd = [sys.executable, "-m", "validation.cli.main", "sweep", "--engine", "reduced", "--grid",
            "beta=20,21,22,23,24,25,26,27", "--metrics", "rms", "--duration", "400",
            "--realizations", "4", "--workers", "2", "--out", str(tmp_path / "sw")]  # fmt: skip
 

@@ -158,7 +158,7 @@ def test_settings_that_cannot_matter_are_refused(kw, words):
 def test_sweep_export_writes_csv_with_units(compared, tmp_path, capsys):
     import pandas as pd
 
-    from validation.cli import main
+    from validation.cli.main import main
 
     out, ds = compared
     assert main(["sweep-export", str(out), "--csv", str(tmp_path / "s.csv")]) == 0

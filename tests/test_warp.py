@@ -97,7 +97,7 @@ def test_a_bad_device_choice_is_one_line_naming_the_variable(monkeypatch) -> Non
 
 
 def _cpu_backend():
-    from cip.warp_batch import WarpRollout
+    from cip.engines.warp_batch import WarpRollout
 
     return type("WarpRollout", (WarpRollout,), {"device": "cpu"})
 
@@ -127,8 +127,8 @@ def test_mujoco_warp_gives_the_same_numbers_on_one_thread_and_on_two() -> None:
 
 
 def _device_control_errors(model: str, n_steps: int, amplitude: float, seed: int):
+    from cip.engines.warp import WarpChunks
     from cip.model import CIPParams
-    from cip.warp import WarpChunks
 
     nc = get_model(model).n_controllers
     chunks = WarpChunks(get_model(model), P, 2, amplitude, CIPParams.from_reduced(P), device="cpu")
@@ -152,9 +152,9 @@ def test_control_on_the_device_equals_the_host_control(model) -> None:
 
 def test_points_packed_in_one_batch_equal_separate_batches() -> None:
     """Two rod lengths as one batch (per-world model fields) give each point's own run."""
+    from cip.engines.warp import point_control
+    from cip.engines.warp_batch import WarpBatch
     from cip.model import CIPParams, build
-    from cip.warp import point_control
-    from cip.warp_batch import WarpBatch
 
     d = P.delay_steps
     phys = [CIPParams.from_reduced(P, rod_length=r) for r in (0.3, 1.2)]
@@ -176,9 +176,9 @@ def test_points_packed_in_one_batch_equal_separate_batches() -> None:
 @pytest.mark.skipif("not _cuda()", reason="requires a CUDA device (CUDA graph capture)")
 def test_cuda_graph_chunk_equals_plain_launches() -> None:
     """A delay chunk replayed as a CUDA graph gives what step-by-step launches give."""
+    from cip.engines.warp import point_control
+    from cip.engines.warp_batch import WarpBatch
     from cip.model import CIPParams, build
-    from cip.warp import point_control
-    from cip.warp_batch import WarpBatch
 
     phys = CIPParams.from_reduced(P)
     ctl = point_control(P, phys, 1e-3)

@@ -17,7 +17,7 @@ import pytest
 
 from cipcore import atomic
 from cipcore.atomic import WriteError, write_text
-from validation.cli import main
+from validation.cli.main import main
 
 
 def _mount_full_tmpfs(where: Path) -> bool:

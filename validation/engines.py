@@ -1,7 +1,7 @@
 """Cross-engine validation: every registered engine through the same pipeline.
 
 Each rigid-body engine of :mod:`cipcore.registry` goes through the agreement
-stages of ``cip-validate run --engine NAME`` (:mod:`validation.agreement`, the
+stages of ``cip-validate run --engine NAME`` (:mod:`validation.checks.agreement`, the
 same profiles, gains, checks and tolerances): lambda1 at the profile's gains,
 the time-series agreement with the reduced model (paper eqs. (3) and (5)) and
 the direct checks (the engine against its own exact twin, the rod, the delay
@@ -31,11 +31,10 @@ from cipcore.atomic import write_text, write_with
 from cipcore.models import MODEL_NAMES
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import REFERENCE, availability, check_engine_name, engine_names, get_engine
-
-from . import agreement
-from .metrics import relative_l2
-from .profiles import PAPER_BETA, PROFILES, TRAJECTORY_WINDOW, Profile
-from .stats import FAIL, INCONCLUSIVE, PASS, Check, ci_overlap, worst
+from validation.checks import agreement
+from validation.checks.metrics import relative_l2
+from validation.checks.stats import FAIL, INCONCLUSIVE, PASS, Check, ci_overlap, worst
+from validation.profiles import PAPER_BETA, PROFILES, TRAJECTORY_WINDOW, Profile
 
 #: The engine every throughput is divided by.
 SPEED_BASELINE = "mujoco"
@@ -112,7 +111,7 @@ def validate_engine(
     """Every check of one engine (see the module docstring); ``seed`` replaces the profile's.
 
     ``selftest`` also injects the fault catalogue at a rigid-body engine's boundary
-    (:func:`validation.selftest.run_selftest`, seed 1, 2 realisations) and reports
+    (:func:`validation.faults.selftest.run_selftest`, seed 1, 2 realisations) and reports
     how many applicable faults its checks flag.
     """
     prof = _profile(profile, seed)
@@ -146,7 +145,7 @@ def validate_engine(
             checks, "twin.rod.coupled", "stretch_over_balancing_error"
         )
         if selftest:
-            from .selftest import run_selftest
+            from validation.faults.selftest import run_selftest
 
             clean, faults = run_selftest(1, 2, engine=name, integrator=integrator)
             ran = [f for f in faults if f["flagged"] is not None]
@@ -239,7 +238,7 @@ def _g(v: Any, fmt: str = ".3g") -> str:
 
 def _rod_cell(row: dict) -> str:
     """The rod's stretch: relative L2 to a soft twin rod's, or RMS over the balancing error's
-    RMS for a rigid twin rod (:mod:`validation.rod_check`)."""
+    RMS for a rigid twin rod (:mod:`validation.checks.rod`)."""
     if row.get("rod_stretch") is not None:
         return _g(row["rod_stretch"])
     if row.get("rod_stretch_over_error") is not None:
@@ -393,7 +392,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path | None:
 
 def write_engine_reports(results: dict[str, Any], out_dir: Path, figures: bool = True) -> None:
     """results.json, report.md and a self-contained report.html in ``out_dir``."""
-    from .report import html_report, write_json
+    from validation.report.document import html_report, write_json
 
     out_dir.mkdir(parents=True, exist_ok=True)
     write_json(results, out_dir / "results.json")

@@ -4,7 +4,7 @@
 ``paper`` uses the paper's realisation counts and durations (100 or 500
 realisations over [0, 1200] s) where the paper states them, and a small grid of
 the estimator choices the paper leaves unstated; ``robustness`` is ``paper``
-with the full grid of those choices (validation.paper.robustness).
+with the full grid of those choices (validation.paper.claims.robustness).
 """
 
 from __future__ import annotations
@@ -67,8 +67,8 @@ class Profile:
     peak_realizations: int = 16
     spectrum_duration: float = 1200.0
     spectrum_realizations: int = 8
-    # estimator choices the paper leaves unstated (validation.paper.robustness): the fractions
-    # of the duration re-estimated (prefixes of the same simulations) and the grid; keys
+    # estimator choices the paper leaves unstated (validation.paper.claims.robustness): the
+    # fractions of the duration re-estimated (prefixes of the same simulations) and the grid; keys
     # missing from the grid take the paper table's defaults
     robustness_durations: tuple = (0.25, 0.5, 1.0)
     robustness_grid: dict = field(

@@ -5,7 +5,7 @@ mapping, metric evaluation, storage, schedulers, plots); this module keeps
 ``from validation.sweep import Study, run_sweep, ...`` working.
 """
 
-from .sweeps import (
+from validation.sweeps import (
     LABELS,
     METRICS,
     SETTINGS,

@@ -54,11 +54,10 @@ import numpy as np
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
-
-from ..agreement import TWIN_AMPLITUDE, TWIN_WINDOW, model_file, rigid_engine
-from ..metrics import relative_l2
-from ..profiles import PAPER_BETA
-from ..stats import FAIL, PASS, Check
+from validation.checks.agreement import TWIN_AMPLITUDE, TWIN_WINDOW, model_file, rigid_engine
+from validation.checks.metrics import relative_l2
+from validation.checks.stats import FAIL, PASS, Check
+from validation.profiles import PAPER_BETA
 
 __all__ = ["FORMAT", "VERSION", "Case", "check_case", "export_case", "load_case", "run_case"]
 

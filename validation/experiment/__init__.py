@@ -4,7 +4,7 @@ Subjects move a mouse that *is* the lower end of a stick (x_M, or q_M1 and
 q_M2); the server computes the upper ends with the reduced model (eq.
 (3) single, eq. (5) coupled) at 50 Hz and a web page draws the
 lines.  Recordings are appended to disk as the trial runs and are analysed
-with the same metrics as the models (:mod:`validation.metrics`).
+with the same metrics as the models (:mod:`validation.checks.metrics`).
 
 Modules, one job each:
 

@@ -2,15 +2,15 @@
 
 For every trial and every stick i:
 
-* tau_hat: the first dominant peak (:func:`validation.metrics.first_dominant_peak`)
+* tau_hat: the first dominant peak (:func:`validation.checks.metrics.first_dominant_peak`)
   of the STCC R(x_T', x_M'; tau) (paper eq. (8); R(q_T', q_Mi') coupled),
   averaged over the trial's windows (window Dt = 5 s as in paper section 3.3,
   lags 0 .. 0.5 s, a window every 1 s; windows whose R is not finite at some
   lag, e.g. a motionless stretch, are left out of the average).  A peak must
   exceed the white-noise level of the average, 3/sqrt(samples of the trial)
-  (:func:`validation.metrics.stcc_significance`).  At 50 Hz tau_hat is a
+  (:func:`validation.checks.metrics.stcc_significance`).  At 50 Hz tau_hat is a
   multiple of 0.02 s, as the paper's values are.
-* RMS of the balancing error Dx or Dq_i over the trial (:func:`validation.metrics.rms`),
+* RMS of the balancing error Dx or Dq_i over the trial (:func:`validation.checks.metrics.rms`),
   in model units and in pixels (1 unit = 1199/6 px).  The paper does not state
   the unit of its RMS values (2.0 .. 6.1); their size is that of screen
   pixels (ours are ~0.1 in model units, ~20 px), so the report sets them
@@ -35,10 +35,9 @@ import numpy as np
 
 from cipcore import Trajectory
 from cipcore.models import MODEL_NAMES
-from validation import metrics
-
-from .recording import find_trials, load_trial
-from .screen import UNIT_PER_PX
+from validation.checks import metrics
+from validation.experiment.recording import find_trials, load_trial
+from validation.experiment.screen import UNIT_PER_PX
 
 #: end reasons of trials cut short from outside; left out of averages unless asked for
 INCOMPLETE = ("abort", "disconnect", "server_stop", "unfinalised")
@@ -114,7 +113,7 @@ def mean_stcc(
     """R(x_T', x_M'; lag) averaged over the windows where it is finite.
 
     Each window is computed on its own stretch of the series (window + max_lag)
-    with :func:`validation.metrics.stcc`, so that the running sums of one
+    with :func:`validation.checks.metrics.stcc`, so that the running sums of one
     window never mix with the amplitudes of another (a trial whose motion
     grows or decays by orders of magnitude keeps every window exact).
     Windows in which either velocity stands still (standard deviation below

@@ -24,8 +24,7 @@ import numpy as np
 
 from cipcore import BalanceParams, ParameterError, random_gain
 from cipcore.params import check_count, whole_steps
-
-from .screen import to_pixel
+from validation.experiment.screen import to_pixel
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,7 @@ from pathlib import Path
 from cipcore import ParameterError
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import check_count, check_positive
-
-from .task import DURATION, ENGINES, TaskSettings
+from validation.experiment.task import DURATION, ENGINES, TaskSettings
 
 
 def _port(text: str) -> int:
@@ -100,7 +99,7 @@ def cmd_serve(a: argparse.Namespace) -> int:
     check_positive("--trial-duration", a.trial_duration)
     check_count("--countdown", a.countdown, minimum=0)
     try:
-        from .server import ServerConfig, start
+        from validation.experiment.server import ServerConfig, start
     except ImportError as exc:
         raise ParameterError(
             f"the experiment server needs aiohttp ({exc}); pip install 'cipval[experiment]'"
@@ -142,7 +141,7 @@ def cmd_serve(a: argparse.Namespace) -> int:
 
 
 def _labels(text: str) -> list[str]:
-    from .protocol import LABEL
+    from validation.experiment.protocol import LABEL
 
     labels = [x.strip() for x in text.split(",")]
     if len(labels) != 2 or not all(LABEL.fullmatch(x) for x in labels) or labels[0] == labels[1]:
@@ -153,8 +152,8 @@ def _labels(text: str) -> list[str]:
 def cmd_bots(a: argparse.Namespace) -> int:
     import numpy as np
 
-    from .bot import BotSpec
-    from .headless import run_bot_trial
+    from validation.experiment.bot import BotSpec
+    from validation.experiment.headless import run_bot_trial
 
     labels = _labels(a.subjects)
     trials = check_count("--trials", a.trials)
@@ -178,8 +177,8 @@ def cmd_bots(a: argparse.Namespace) -> int:
 
 
 def cmd_analyze(a: argparse.Namespace) -> int:
-    from .recording import find_trials
-    from .report import write_report
+    from validation.experiment.recording import find_trials
+    from validation.experiment.report import write_report
 
     d = Path(a.dir)
     if not d.is_dir():

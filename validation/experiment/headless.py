@@ -10,10 +10,10 @@ from __future__ import annotations
 import secrets
 from pathlib import Path
 
-from .bot import BotSpec, PseudoNeuralBot
-from .recording import Recorder, make_header
-from .task import INITIAL_BASES, TaskSettings, make_task
-from .trial import Trial
+from validation.experiment.bot import BotSpec, PseudoNeuralBot
+from validation.experiment.recording import Recorder, make_header
+from validation.experiment.task import INITIAL_BASES, TaskSettings, make_task
+from validation.experiment.trial import Trial
 
 
 def trial_stem(out_dir: Path, mode: str, subjects: list[str], trial_index: int) -> Path:

@@ -36,8 +36,7 @@ import re
 from typing import Any
 
 from cipcore.models import get_model
-
-from .task import MODES
+from validation.experiment.task import MODES
 
 MAX_MESSAGE_BYTES = 2048
 #: mouse messages per second allowed on one connection (the page sends <= 100)

@@ -42,8 +42,7 @@ from typing import Any
 import numpy as np
 
 from cipcore import Trajectory
-
-from .trial import Sample
+from validation.experiment.trial import Sample
 
 FORMAT = "cipval-experiment-1"
 #: an fsync is started at least this often (s)

@@ -1,7 +1,7 @@
 """The experiment's report: Tables STCC and RMS, Figs. move_s, move_c, stcc_s, stcc_c, rmstau.
 
 Markdown and a self-contained HTML page (the suite's
-:func:`validation.report.html_report`), plus ``results.json``.  Where the
+:func:`validation.report.document.html_report`), plus ``results.json``.  Where the
 recordings name subjects A and B, the paper's numbers for pair (A, B) stand
 beside ours, in the same unit only: tau_hat in s, RMS beside our RMS in
 pixels (the paper's RMS, 2.0 .. 6.1, has the size of pixels; its unit is not
@@ -20,10 +20,8 @@ import numpy as np
 
 from cipcore import Trajectory
 from cipcore.models import MODEL_NAMES, get_model
-from validation import metrics
-from validation.report import html_report, jsonable
-
-from .analysis import (
+from validation.checks import metrics
+from validation.experiment.analysis import (
     INCOMPLETE,
     PAPER_AB,
     PAPER_AB_AVERAGE,
@@ -37,6 +35,7 @@ from .analysis import (
     table,
     trial_tau_hat,
 )
+from validation.report.document import html_report, jsonable
 
 
 def _f(v: float, digits: int = 3) -> str:

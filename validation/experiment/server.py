@@ -41,10 +41,9 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from aiohttp.abc import AbstractAccessLogger
 
 from cipcore import ParameterError
-
-from .protocol import RATES, BadMessage, RateLimiter, parse
-from .session import Seat, Session, make_bots
-from .task import TaskSettings
+from validation.experiment.protocol import RATES, BadMessage, RateLimiter, parse
+from validation.experiment.session import Seat, Session, make_bots
+from validation.experiment.task import TaskSettings
 
 log = logging.getLogger("cipval.experiment")
 

@@ -28,12 +28,11 @@ from pathlib import Path
 from typing import Any
 
 from cipcore import ParameterError
-
-from .bot import BotSpec, PseudoNeuralBot
-from .headless import trial_stem
-from .recording import Recorder, make_header
-from .task import INITIAL_BASES, INITIAL_TIP, TaskSettings, make_task
-from .trial import Trial
+from validation.experiment.bot import BotSpec, PseudoNeuralBot
+from validation.experiment.headless import trial_stem
+from validation.experiment.recording import Recorder, make_header
+from validation.experiment.task import INITIAL_BASES, INITIAL_TIP, TaskSettings, make_task
+from validation.experiment.trial import Trial
 
 log = logging.getLogger("cipval.experiment")
 

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .screen import UNIT_PER_PX, VISIBLE
-from .task import TaskModel, TaskSettings
+from validation.experiment.screen import UNIT_PER_PX, VISIBLE
+from validation.experiment.task import TaskModel, TaskSettings
 
 END_REASONS = ("time", "out_of_range", "abort", "disconnect", "server_stop")
 

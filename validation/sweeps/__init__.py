@@ -57,12 +57,12 @@ change a result (a rigid-body setting on the reduced engine, a rod setting on
 a one-stick model) is refused.
 """
 
-from .evaluate import evaluate_point
-from .mapping import point_params
-from .report import LABELS, mean_ci, plot_metric, write_sweep_report
-from .schedule import SweepReport, run_sweep
-from .store import DirectoryLock, Store, assemble, write_dataset
-from .study import (
+from validation.sweeps.evaluate import evaluate_point
+from validation.sweeps.mapping import point_params
+from validation.sweeps.report import LABELS, mean_ci, plot_metric, write_sweep_report
+from validation.sweeps.schedule import SweepReport, run_sweep
+from validation.sweeps.store import DirectoryLock, Store, assemble, write_dataset
+from validation.sweeps.study import (
     METRICS,
     SETTINGS,
     STCC_MIN_DURATION,

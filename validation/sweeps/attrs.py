@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from .paired import DIFF_METRICS, LOG_METRICS, comparison_names
+from validation.sweeps.paired import DIFF_METRICS, LOG_METRICS, comparison_names
 
 #: settings (coordinates) -> (long_name, units)
 SETTING_ATTRS: dict[str, tuple[str, str]] = {

@@ -8,12 +8,11 @@ from typing import Any
 import numpy as np
 
 from cipcore.registry import REFERENCE, get_engine
-
-from .. import metrics as mt
-from ..divergence import divergence_times, pendulum_length, trajectory_events
-from ..profiles import TRAJECTORY_WINDOW
-from .mapping import point_params
-from .study import Study, point_seed
+from validation.checks import metrics as mt
+from validation.checks.divergence import divergence_times, pendulum_length, trajectory_events
+from validation.profiles import TRAJECTORY_WINDOW
+from validation.sweeps.mapping import point_params
+from validation.sweeps.study import Study, point_seed
 
 SERIES_FIELDS = ("balancing_error", "tip_velocity", "base_velocity")
 
@@ -25,7 +24,7 @@ def evaluate_point(
 
     Besides the metrics, every point records ``diverged`` (1 when a realisation
     diverged: non-finite, an engine stop, a fallen pole; see
-    :mod:`validation.divergence`) and ``divergence_time`` (s, per realisation,
+    :mod:`validation.checks.divergence`) and ``divergence_time`` (s, per realisation,
     NaN where none).  ``gain`` is the point's target gain
     (:func:`validation.sweeps.gains.point_gains`: ``beta_star`` and its 95 %
     interval, 1/s^2), recorded with the point and used as its beta.

@@ -6,6 +6,6 @@ A module of its own because importing it has that effect (see
 
 from __future__ import annotations
 
-from .lifeline import die_with_parent
+from validation.sweeps.lifeline import die_with_parent
 
 die_with_parent()

@@ -24,12 +24,11 @@ from typing import Any
 
 from cipcore.models import get_model
 from cipcore.params import ParameterError
-
-from ..profiles import PAPER_BETA
-from ..versions import package_versions
-from .mapping import point_params
-from .store import atomic_write
-from .study import Study, point_key
+from validation.profiles import PAPER_BETA
+from validation.regression.versions import package_versions
+from validation.sweeps.mapping import point_params
+from validation.sweeps.store import atomic_write
+from validation.sweeps.study import Study, point_key
 
 
 def gain_seed(study: Study) -> int:

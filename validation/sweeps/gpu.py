@@ -2,7 +2,7 @@
 
 World ``w`` is realisation ``w // P`` of point ``w % P`` (P points), so that the
 points' differing model fields (rod length, masses, constraint settings) become
-MuJoCo Warp per-world model fields (:func:`cip.warp_batch.batched_model`) and
+MuJoCo Warp per-world model fields (:func:`cip.engines.warp_batch.batched_model`) and
 their control settings per-world arrays of the device control.  Each point
 keeps its own seed (:func:`validation.sweep.point_seed`) and realisation ``r``
 of it draws from ``GainNoise(seed, R, C)`` stream ``r``, exactly as the CPU
@@ -28,10 +28,9 @@ from cipcore.models import get_model
 from cipcore.noise import GainNoise
 from cipcore.params import ParameterError, whole_steps
 from cipcore.schema import Trajectory
-
-from .evaluate import nan_to_none, trajectory_metrics
-from .mapping import point_params
-from .study import Study, point_seed
+from validation.sweeps.evaluate import nan_to_none, trajectory_metrics
+from validation.sweeps.mapping import point_params
+from validation.sweeps.study import Study, point_seed
 
 GPU_METRICS = ("rms", "max_angle", "agreement", "tau_hat", "slopes")
 
@@ -41,9 +40,9 @@ def packed_trajectories(
 ) -> list[Trajectory]:
     """One Trajectory per point (fields balancing_error, tip_velocity, base_velocity, angle;
     attrs max_abs_angle, diverged, seed) from one packed batch on the device."""
+    from cip.engines.warp import point_control
+    from cip.engines.warp_batch import WarpBatch
     from cip.model import build
-    from cip.warp import point_control
-    from cip.warp_batch import WarpBatch
     from cipcore.gpu import warp_device
 
     settings = [point_params(study, p) for p in points]

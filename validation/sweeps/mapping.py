@@ -7,8 +7,7 @@ from typing import Any
 from cipcore.models import get_model
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import get_engine
-
-from ..profiles import PAPER_BETA
+from validation.profiles import PAPER_BETA
 
 REDUCED_KEYS = ("beta", "alpha", "gamma", "nu", "tau", "dt")
 PHYSICAL_KEYS = (

@@ -11,9 +11,8 @@ import numpy as np
 
 from cipcore.atomic import write_text, write_with
 from cipcore.params import ParameterError
-
-from .store import is_number
-from .study import Study
+from validation.sweeps.store import is_number
+from validation.sweeps.study import Study
 
 #: axis labels of the settings and metrics (kept for callers; plots read the dataset's
 #: CF ``long_name`` / ``units``, see :mod:`validation.sweeps.attrs`)
@@ -50,7 +49,7 @@ def median_ci(ds, name: str, seed: int = 0):
     (median, low, high) DataArrays over the other dimensions."""
     import xarray as xr
 
-    from .paired import summary_ci
+    from validation.sweeps.paired import summary_ci
 
     a = ds[name]
     if "realization" not in a.dims:
@@ -94,8 +93,8 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
     per-point quantity: its value, with its ``_ci_low`` / ``_ci_high`` band when
     the dataset has one.  Axes carry the variables' ``long_name [units]``.
     """
-    from ..plots import plt
-    from .attrs import label
+    from validation.report.plots import plt
+    from validation.sweeps.attrs import label
 
     if metric not in ds:
         raise ParameterError(
@@ -178,7 +177,7 @@ def _ci(v: float, lo: float, hi: float) -> str:
 
 def _cells(ds, metric: str, sel: dict, seed: int, index: int) -> list[str]:
     """Report cells of one per-realisation metric at one point: heavy-tail summaries."""
-    from .paired import summary_ci
+    from validation.sweeps.paired import summary_ci
 
     v = np.asarray(ds[metric].sel(sel).values, dtype=float)
     if metric == "rms":
@@ -197,7 +196,7 @@ def write_sweep_report(study: Study, out_dir: Path) -> Path:
     target gains beta* with their intervals, and a table of heavy-tail summaries."""
     import xarray as xr
 
-    from .attrs import label
+    from validation.sweeps.attrs import label
 
     out_dir = Path(out_dir)
     with xr.open_dataset(out_dir / "sweep.nc", engine="scipy") as ds:

@@ -12,13 +12,12 @@ from pathlib import Path
 
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
-
-from .evaluate import evaluate_point
-from .gains import point_gains
-from .gpu import evaluate_points as evaluate_gpu_points
-from .lifeline import die_with_parent
-from .store import DirectoryLock, Store, write_dataset
-from .study import Study, point_key
+from validation.sweeps.evaluate import evaluate_point
+from validation.sweeps.gains import point_gains
+from validation.sweeps.gpu import evaluate_points as evaluate_gpu_points
+from validation.sweeps.lifeline import die_with_parent
+from validation.sweeps.store import DirectoryLock, Store, write_dataset
+from validation.sweeps.study import Study, point_key
 
 
 @dataclass

@@ -34,9 +34,8 @@ import numpy as np
 
 from cipcore.atomic import write_text, write_with
 from cipcore.params import ParameterError
-
-from ..versions import package_versions
-from .study import Study, point_key
+from validation.regression.versions import package_versions
+from validation.sweeps.study import Study, point_key
 
 LOCK_NAME = ".lock"
 
@@ -171,7 +170,7 @@ def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
     """
     import xarray as xr
 
-    from .attrs import coord_attrs, variable_attrs
+    from validation.sweeps.attrs import coord_attrs, variable_attrs
 
     axes = study.axes()
     dims = list(axes)
@@ -197,7 +196,7 @@ def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
     coords["realization"] = np.arange(n)
     ds = xr.Dataset(data_vars, coords=coords)
     if study.compare and "realization" in ds.dims:
-        from .paired import paired_variables
+        from validation.sweeps.paired import paired_variables
 
         for name, v in paired_variables(ds, list(study.compare), study.seed).items():
             ds[name] = v
@@ -237,7 +236,7 @@ def effective_settings(study: Study) -> dict[str, Any]:
     target is the variable ``beta_star``); ``stcc_<name>`` the tau_hat
     estimator's settings, ``gain_<name>`` the target-gain settings.
     """
-    from .mapping import DEFAULT_AMPLITUDE, point_params
+    from validation.sweeps.mapping import DEFAULT_AMPLITUDE, point_params
 
     point = study.points()[0]
     params, phys, amplitude = point_params(study, point, beta=1.0 if study.gain else None)

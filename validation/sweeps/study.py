@@ -23,10 +23,9 @@ import numpy as np
 from cipcore.models import get_model
 from cipcore.params import ParameterError
 from cipcore.registry import check_engine_name, get_engine
-
-from ..profiles import Profile
-from ..versions import package_versions
-from .mapping import ROD_KEYS, SETTINGS, WORD_SETTINGS, point_params
+from validation.profiles import Profile
+from validation.regression.versions import package_versions
+from validation.sweeps.mapping import ROD_KEYS, SETTINGS, WORD_SETTINGS, point_params
 
 METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
 #: metrics defined only for an engine with ``capabilities.rigid_body``

@@ -1,0 +1,13 @@
+"""The rigid-body engines: one module per engine family, each a registry entry.
+
+* :mod:`~cip.engines.rigid_body`: :class:`~cip.engines.rigid_body.RigidBodyEngine`, the
+  adapter every rigid-body engine shares, and MuJoCo on the CPU;
+* :mod:`~cip.engines.mjx`: MJX (JAX);
+* :mod:`~cip.engines.warp`, :mod:`~cip.engines.warp_batch`: MuJoCo Warp;
+* :mod:`~cip.engines.drake`, :mod:`~cip.engines.drake_plant`: Drake;
+* :mod:`~cip.engines.bullet`, :mod:`~cip.engines.exudyn`, :mod:`~cip.engines.simbody`;
+* :mod:`~cip.engines.process`: an engine in another program (the chunk protocol).
+
+A new engine is one module here, one entry in :data:`cipcore.registry.ENGINES` and
+one extra in ``pyproject.toml``.
+"""

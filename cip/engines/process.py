@@ -1,0 +1,285 @@
+"""An engine in another program: the chunk exchange protocol over stdin/stdout.
+
+An engine written in any language runs as a child process (``--engine-cmd
+"CMD ARGS"``); :class:`ProcessRollout` is the :class:`cip.runner.RolloutBackend`
+that drives it, so the delayed random-gain control (eq. (3)), the noise
+draws, the recording and every check stay in cipval, and the engine only
+advances the CIP's states over one delay chunk at a time under controls it is
+given (the controls of a chunk of d = tau/dt steps depend only on states a
+delay old, so they are known before the chunk starts).
+
+Wire format, version 1 (all numbers little-endian IEEE-754 float64 or int64):
+
+1. cipval writes one line of UTF-8 JSON, the **header**, ending in ``\\n``::
+
+       {"protocol": "cipval-chunk", "version": 1, "n_realizations": R,
+        "nstate": S, "nu": U, "timestep": dt, "integrator": "Euler",
+        "state_layout": "mjSTATE_FULLPHYSICS",
+        "joints": {"x_M1": {"qpos": i, "qvel": j}, "theta_1": {...}, ...},
+        "actuators": {"u_1": k, ...},
+        "parameters": {...},            # the CIP's physical quantities (SI units)
+        "mjb_base64": "..."}            # the same model as a MuJoCo binary (MJB)
+
+   ``parameters`` are :class:`cip.engines.drake_plant.CIPGeometry`'s fields: cart and
+   bob masses (kg), pendulum lengths (m), bob inertias (kg m^2), the viscous
+   dampings at tip and cart (1/s, as forces per unit mass and velocity:
+   F = -gamma m v), gravity (m/s^2), the rod length between the tips (m;
+   null for the single model), the state indices of each joint.  A state
+   vector (S values) is MuJoCo's ``mjSTATE_FULLPHYSICS``: time (s), then qpos
+   (nq: cart x in m, pendulum angle in rad, per controller), qvel (nv), then
+   the remaining physics state, which an engine without it passes through.
+2. The engine answers one JSON line: ``{"protocol": "cipval-chunk", "version":
+   1, "engine": "NAME"}``, or ``{"error": "why"}`` and exits.  It may add
+   ``"sessions": "many"``: it then serves another session after this one (below).
+3. For every chunk cipval writes a **request frame**: int64 n (1 <= n <= d,
+   the steps of this chunk), the R start states (R x S float64, row-major),
+   the controls (R x n x U float64: control k is held over step k).  The
+   engine answers a **response frame**: int64 w (its warnings so far: failed
+   steps, instabilities), then the R x n states *after* each step
+   (R x n x S float64).
+4. A request with n = 0 ends the session.  An engine that did not answer
+   ``"sessions": "many"`` exits with status 0.  One that did reads the next line:
+   another header (step 1: a new session, with nothing kept from the last one),
+   or the end of its stdin, where it exits with status 0.  cipval keeps such an
+   engine between sessions (:data:`IDLE_PER_COMMAND` of them per command) instead
+   of starting the program for every run: a validation run holds some twenty
+   sessions, and a program's start-up (its runtime, its imports, a JIT) is paid
+   once.  Its stdin closes when cipval ends, however it ends.
+
+``examples/chunk_engine.py`` is a reference implementation of the engine side
+(numpy and MuJoCo only).  Anything the child writes to stderr goes to
+cipval's stderr; a child that exits or answers short raises
+:class:`EngineProcessError` naming the command, and ``cip-validate run``
+then exits 4 with the partial results.
+"""
+
+from __future__ import annotations
+
+import atexit
+import base64
+import json
+import shlex
+import subprocess
+import threading
+import weakref
+from dataclasses import asdict
+from typing import Any, ClassVar
+
+import mujoco
+import numpy as np
+
+from cip.engines.drake_plant import geometry_from_mujoco
+from cip.engines.rigid_body import RigidBodyEngine
+from cipcore.engine import Capabilities
+from cipcore.params import ParameterError
+
+__all__ = ["IDLE_PER_COMMAND", "PROTOCOL", "VERSION", "EngineProcessError", "ProcessRollout",
+           "close_idle_engines", "idle_engines", "process_engine"]  # fmt: skip
+
+PROTOCOL, VERSION = "cipval-chunk", 1
+_I64, _F64 = np.dtype("<i8"), np.dtype("<f8")
+#: engines kept between sessions per command (those that answered ``"sessions": "many"``)
+IDLE_PER_COMMAND = 2
+_idle: dict[tuple[str, ...], list[subprocess.Popen]] = {}
+_idle_lock = threading.Lock()
+
+
+class EngineProcessError(RuntimeError):
+    """The engine's process broke the protocol (exited, answered short or with an error)."""
+
+
+def _integrator(model: mujoco.MjModel) -> str:
+    return mujoco.mjtIntegrator(model.opt.integrator).name.removeprefix("mjINT_").title()
+
+
+def header(model: mujoco.MjModel, n_realizations: int) -> dict[str, Any]:
+    """The header line's content for ``model`` (see the module docstring)."""
+    obj = mujoco.mjtObj
+    joints = {}
+    for j in range(model.njnt):
+        name = mujoco.mj_id2name(model, obj.mjOBJ_JOINT, j)
+        joints[name] = {"qpos": 1 + int(model.jnt_qposadr[j]),
+                        "qvel": 1 + model.nq + int(model.jnt_dofadr[j])}  # fmt: skip
+    actuators = {mujoco.mj_id2name(model, obj.mjOBJ_ACTUATOR, a): a for a in range(model.nu)}
+    size = mujoco.mj_sizeModel(model)
+    buf = np.zeros(size, dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buf)
+    params = asdict(geometry_from_mujoco(model))
+    return {
+        "protocol": PROTOCOL, "version": VERSION, "n_realizations": n_realizations,
+        "nstate": mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS),
+        "nu": model.nu, "timestep": float(model.opt.timestep),
+        "integrator": _integrator(model),
+        "state_layout": "mjSTATE_FULLPHYSICS", "joints": joints, "actuators": actuators,
+        "parameters": params, "mjb_base64": base64.b64encode(buf.tobytes()).decode("ascii"),
+    }  # fmt: skip
+
+
+def _end(proc: subprocess.Popen) -> None:
+    """Close an engine's stdin and wait for it (killed after 10 s)."""
+    try:
+        proc.stdin.close()
+        proc.wait(timeout=10)
+    except (OSError, ValueError, subprocess.TimeoutExpired):
+        proc.kill()
+        proc.wait()
+
+
+def _close(proc: subprocess.Popen, session: dict) -> None:
+    """End a session (request n = 0): the engine is kept for the next one when it serves
+    many and the session ended between frames; else it ends."""
+    try:
+        if proc.poll() is None and not session["in_frame"]:
+            proc.stdin.write(np.zeros(1, _I64).tobytes())
+            proc.stdin.flush()
+    except (OSError, ValueError):
+        session["reusable"] = False
+    if session["reusable"] and not session["in_frame"] and proc.poll() is None:
+        with _idle_lock:
+            idle = _idle.setdefault(session["key"], [])
+            if len(idle) < IDLE_PER_COMMAND:
+                idle.append(proc)
+                return
+    if session["in_frame"] and proc.poll() is None:
+        proc.kill()  # a frame was cut off (an interrupt): its answer is in no known state
+    _end(proc)
+
+
+def _take_idle(key: tuple[str, ...]) -> subprocess.Popen | None:
+    """A kept engine of this command still running, or None."""
+    with _idle_lock:
+        idle = _idle.get(key, [])
+        while idle:
+            proc = idle.pop()
+            if proc.poll() is None:
+                return proc
+            _end(proc)
+    return None
+
+
+def idle_engines(command: str) -> list[int]:
+    """Process ids of the engines of ``command`` kept between sessions (running ones)."""
+    with _idle_lock:
+        return [p.pid for p in _idle.get(tuple(shlex.split(command)), []) if p.poll() is None]
+
+
+@atexit.register
+def close_idle_engines() -> None:
+    """End every engine kept between sessions (at exit; also for tests)."""
+    with _idle_lock:
+        procs = [p for idle in _idle.values() for p in idle]
+        _idle.clear()
+    for proc in procs:
+        _end(proc)
+
+
+class ProcessRollout:
+    """:class:`cip.runner.RolloutBackend` driving an engine process (module docstring).
+
+    Subclassed per command by :func:`process_engine` (``command`` is the argv).
+    """
+
+    command: ClassVar[list[str]] = []
+
+    def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
+        self.n_realizations = n_realizations
+        self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self.nu = model.nu
+        self._warnings = 0
+        key = tuple(self.command)
+        line = (json.dumps(header(model, n_realizations)) + "\n").encode()
+        kept = _take_idle(key)
+        if kept is not None:
+            try:  # a kept engine that cannot take the header is replaced by a new one
+                self._open(kept, key, line)
+                return
+            except EngineProcessError:
+                self._finalizer.detach()
+                kept.kill()
+                kept.wait()
+        try:
+            proc = subprocess.Popen(self.command, stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE)  # fmt: skip
+        except OSError as exc:
+            cmd = shlex.join(self.command)
+            raise EngineProcessError(f"cannot start engine {cmd!r}: {exc}") from None
+        self._open(proc, key, line)
+
+    def _open(self, proc: subprocess.Popen, key: tuple[str, ...], line: bytes) -> None:
+        """Start a session on ``proc``: the header, the engine's answer."""
+        self.proc = proc
+        self._session = {"key": key, "reusable": False, "in_frame": False}
+        self._finalizer = weakref.finalize(self, _close, proc, self._session)
+        try:
+            proc.stdin.write(line)
+            proc.stdin.flush()
+            reply = proc.stdout.readline()
+        except OSError as exc:
+            raise self._broken(f"handshake failed ({exc})") from None
+        try:
+            answer = json.loads(reply or b"null")
+        except json.JSONDecodeError:
+            answer = None
+        if not isinstance(answer, dict) or "error" in answer or answer.get("version") != VERSION:
+            why = answer.get("error") if isinstance(answer, dict) else f"answered {reply[:80]!r}"
+            raise self._broken(f"refused the session: {why}")
+        self.engine_name = str(answer.get("engine", "?"))
+        self._session["reusable"] = answer.get("sessions") == "many"
+
+    def _broken(self, what: str) -> EngineProcessError:
+        try:  # a child that died: give the OS a moment to report its status
+            code = self.proc.wait(timeout=2)
+        except subprocess.TimeoutExpired:
+            code = None
+        tail = f" (exited with status {code})" if code is not None else ""
+        return EngineProcessError(f"engine {shlex.join(self.command)!r} {what}{tail}")
+
+    def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+        n = ctrl.shape[1]
+        frame = (np.array([n], _I64).tobytes() + np.ascontiguousarray(state, _F64).tobytes()
+                 + np.ascontiguousarray(ctrl, _F64).tobytes())  # fmt: skip
+        want = 8 + out.size * 8
+        self._session["in_frame"] = True
+        try:
+            self.proc.stdin.write(frame)
+            self.proc.stdin.flush()
+            data = self.proc.stdout.read(want)
+        except OSError as exc:
+            raise self._broken(f"broke the pipe ({exc})") from None
+        if data is None or len(data) != want:
+            raise self._broken(f"answered {len(data or b'')} of {want} bytes")
+        self._session["in_frame"] = False
+        self._warnings = int(np.frombuffer(data[:8], _I64)[0])
+        out[...] = np.frombuffer(data[8:], _F64).reshape(out.shape)
+
+    def warnings(self) -> int:
+        return self._warnings
+
+    def close(self) -> None:
+        """End the session (request n = 0; the engine is kept for the next session when
+        it serves many); also done when the backend is collected."""
+        self._finalizer()
+
+
+def process_engine(command: str, name: str = "command") -> RigidBodyEngine:
+    """A registry engine that runs ``command`` (split like a POSIX shell) as its engine.
+
+    Its capabilities are those the suite holds an external rigid-body engine to:
+    float64 on the CPU, deterministic, MuJoCo's trajectory tolerance 1e-2 to the
+    reduced model; it offers no linearisation.  One process per realisation block;
+    the blocks run one at a time.
+    """
+    argv = shlex.split(command)
+    if not argv:
+        raise ParameterError("--engine-cmd: empty command")
+    backend = type("ProcessRollout_" + name.replace("-", "_"), (ProcessRollout,),
+                   {"command": argv})  # fmt: skip
+    return RigidBodyEngine(
+        name=name,
+        capabilities=Capabilities(precision="float64", device="cpu", rigid_body=True,
+                                  linearize=False, deterministic=True,
+                                  family="external process", trajectory_tolerance=1e-2),
+        backend=lambda: backend,
+        max_threads=1,
+        notes=f"external engine process: {command}",
+    )  # fmt: skip

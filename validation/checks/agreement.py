@@ -1,0 +1,908 @@
+"""Full (a rigid-body engine) vs reduced model under the same noise draws: metrics and verdicts.
+
+Each function runs the engine under validation (any rigid-body engine of
+:mod:`cipcore.registry`, ``engine=``, MuJoCo by default) and the reduced model
+with one seed, computes a metric per realisation and returns
+:class:`validation.checks.stats.Check` objects whose tolerances follow the rules in
+:mod:`validation.checks.stats`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from cip.model import small_angle_limit
+from cip.simulate import DivergenceWarning
+from cipcore.models import MODEL_NAMES, get_model
+from cipcore.params import ParameterError
+from cipcore.registry import get_engine
+from cipcore.schema import Trajectory
+from reduced import BalanceParams, lyapunov, simulate
+from validation.checks import metrics
+from validation.checks.rod import rod_check
+from validation.checks.stats import (
+    FAIL,
+    PASS,
+    Check,
+    ci_overlap,
+    paired_equivalence,
+    paired_shift,
+    se_agreement,
+    worst,
+)
+from validation.profiles import PAPER_BETA, TRAJECTORY_WINDOW, Profile
+
+SERIES_FIELDS = ("balancing_error", "balancing_error_velocity", "tip_velocity", "base_velocity")
+
+
+def lyapunov_checks(
+    profile: Profile,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> tuple[list[Check], dict]:
+    """lambda1 of both engines at each gain of the profile (CI-overlap rule)."""
+    from cip.mjcf_params import read_mapping
+
+    checks, rows = [], []
+    precision = rigid_engine(engine).capabilities.precision
+    epsilon = profile.lyapunov_epsilon(precision)
+    for model, gains in profile.lyapunov_gains.items():
+        m = model_file(model, files, integrator)
+        phys = read_mapping(m).physical()
+        for beta in gains:
+            p = BalanceParams(beta=beta)
+            seed = profile.seed_for("lyapunov", model, beta)
+            kw = {
+                "duration": profile.lyapunov_duration,
+                "n_realizations": profile.lyapunov_realizations,
+                "seed": seed,
+                "threads": threads,
+            }
+            red = lyapunov(model, p, **kw)
+            full = rigid_engine(engine).lyapunov(
+                model, p, physical=phys, mj_model=m, epsilon=epsilon, **kw
+            )
+            status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
+            rows.append(
+                {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
+            )
+            checks.append(
+                Check(
+                    name=f"agreement.lambda1.{model}.beta={beta:g}",
+                    status=status,
+                    values={
+                        "full": {"value": full.lambda1, "ci95": list(full.ci95), "se": full.sem},
+                        "reduced": {"value": red.lambda1, "ci95": list(red.ci95), "se": red.sem},
+                        **v,
+                    },
+                    tolerance="95% CIs overlap: pass if |difference| <= larger half-width, "
+                    "fail if the intervals are disjoint",
+                    details=f"{profile.lyapunov_realizations} realisations x "
+                    f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both engines, "
+                    f"Benettin deviation {epsilon:g} m{lyapunov_epsilon_note(profile, precision)}",
+                )
+            )
+    return checks, {"lyapunov": rows}
+
+
+@dataclass
+class SeriesMetrics:
+    """Per-realisation metrics of one engine's time series (controller 1)."""
+
+    log_rms: np.ndarray
+    band_log_power: np.ndarray  # (R, bands)
+    band_centres: np.ndarray
+    slopes: metrics.PowerLawFit
+    spectrum: tuple[np.ndarray, np.ndarray]
+    tau_hat: np.ndarray  # (R, windows)
+    stcc_times: np.ndarray
+    tau_hat_median: np.ndarray
+    fast_fraction: np.ndarray  # fraction of windows with tau_hat < tau
+    log_velocity_sd: np.ndarray
+
+
+def series_metrics(tr: Trajectory, profile: Profile, tau: float, segment: float) -> SeriesMetrics:
+    """Metrics of controller 1's balancing error and velocities (paper section 3)."""
+    dt = tr.sample_interval
+    e = tr["balancing_error"][..., 0].astype(float)
+    f, s = metrics.power_spectrum(e, dt, segment=segment)
+    lo, hi = profile.spectrum_band
+    lo = max(lo, 2.0 / segment)
+    centres, bands = metrics.band_log_power(f, s, lo, hi, n_bins=8)
+    fit = metrics.fit_two_power_laws(f, s, lo, hi, n_bins=16, n_bootstrap=100, seed=profile.seed)
+    vt, vb = tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0]
+    t, lags, r = metrics.stcc(
+        vt, vb, dt, profile.stcc_window, profile.stcc_max_lag, profile.stcc_stride
+    )
+    # per-window level from the effective number of independent samples (Bartlett)
+    sig = metrics.stcc_significance_bartlett(vt, vb, dt, t, profile.stcc_window)
+    th = metrics.first_dominant_peak(r, lags, significance=sig)
+    with np.errstate(invalid="ignore"):
+        fast = np.nanmean(np.where(np.isfinite(th), th < tau, np.nan), axis=-1)
+    return SeriesMetrics(
+        log_rms=np.log10(metrics.rms(e)),
+        band_log_power=bands,
+        band_centres=centres,
+        slopes=fit,
+        spectrum=(f, s),
+        tau_hat=th,
+        stcc_times=t,
+        tau_hat_median=np.nanmedian(th, axis=-1),
+        fast_fraction=fast,
+        log_velocity_sd=np.log10(np.std(tr["balancing_error_velocity"][..., 0], axis=-1)),
+    )
+
+
+def trajectory_distance(
+    full: Trajectory, red: Trajectory, window: float = TRAJECTORY_WINDOW
+) -> float:
+    """Relative L2 distance of the balancing errors over [0, window) s, all realisations."""
+    k = int(np.searchsorted(full.time, window))
+    return metrics.relative_l2(full["balancing_error"][:, :k], red["balancing_error"][:, :k])
+
+
+def run_pair(
+    model: str,
+    beta: float,
+    amplitude: float,
+    duration: float,
+    n: int,
+    seed: int,
+    decimate: int,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> tuple[Trajectory, Trajectory]:
+    """Both engines, same parameters and seed: (full, reduced).
+
+    The full model is the model file (``files[model]``, a user's ``--mjcf``, or
+    the shipped ``models/cip_<model>.xml``, stepped with ``integrator`` where
+    given), its physical parameters read from it, run by ``engine``.
+    """
+    from cip.mjcf_params import read_mapping
+
+    p = BalanceParams(beta=beta)
+    kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
+    m = model_file(model, files, integrator)
+    full = rigid_engine(engine).simulate(
+        model, p, duration, n, seed, fields=(*SERIES_FIELDS, "angle"),
+        physical=read_mapping(m).physical(), mj_model=m, **kw,
+    )  # fmt: skip
+    red = simulate(model, p, duration, n, seed, fields=SERIES_FIELDS, **kw)
+    return full, red
+
+
+#: Floor of the full-vs-twin metric differences (log10 units, seconds or fractions):
+#: measured at most 2.2e-8 (coupled spectrum bands; 7.7e-12 single) for the quick
+#: profile's series (1e-8 m, 8 x 100 s); 1e-6 leaves a factor 45.
+TWIN_METRIC_FLOOR = 1e-6
+
+PAIRED_RULE = (
+    "paired TOST: 95% CI of the per-realisation full - reduced difference within +- margin, "
+    "margin = |twin - reduced| (the known terms, paired mean + 95% half-width) + the paired "
+    "95% half-width; inconclusive states the realisations needed"
+)
+
+
+def run_twin(
+    model: str,
+    beta: float,
+    amplitude: float,
+    duration: float,
+    n: int,
+    seed: int,
+    decimate: int,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> Trajectory:
+    """The engine's exact twin of the model file under the same noise as :func:`run_pair`."""
+    from cip.mjcf_params import read_mapping
+    from reduced.twin import TwinParams, simulate_twin
+
+    mapping = read_mapping(model_file(model, files, integrator))
+    tw = TwinParams(**rigid_engine(engine).twin_terms(mapping))
+    return simulate_twin(
+        model, BalanceParams(beta=beta), tw, duration, n, seed, amplitude=amplitude,
+        decimate=decimate, fields=SERIES_FIELDS, threads=threads,
+    )  # fmt: skip
+
+
+def compare_series(
+    model: str,
+    mf: SeriesMetrics,
+    mr: SeriesMetrics,
+    label: str,
+    details: str,
+    mt: SeriesMetrics | None = None,
+    me: SeriesMetrics | None = None,
+) -> list[Check]:
+    """Verdicts for RMS, spectrum (bands and slopes), STCC peaks and velocity spread.
+
+    ``mt`` are the exact twin's metrics under the same noise: they set the
+    full-vs-reduced margins (the known terms' difference) and each metric is
+    also checked against the twin (:func:`validation.checks.stats.paired_shift`).
+    ``me`` are the envelope twin's (:func:`validation.checks.conformance.envelope_twin_terms`):
+    the known terms enter a margin only up to theirs.
+    """
+    from validation.checks.conformance import BOUNDED_RULE, bounded_margin
+
+    checks = []
+    shifts: dict[str, dict] = {}
+
+    def twin_shift(metric: str, a, t) -> None:
+        if mt is not None:
+            st, v = paired_shift(a, t, TWIN_METRIC_FLOOR)
+            shifts[metric] = {"status": st, **v}
+
+    def paired(metric: str, a, b, what: str, t=None, env=None) -> None:
+        if t is not None and env is not None:
+            status, v = paired_equivalence(a, b, bounded_margin(a, b, t - b, env - b))
+        else:
+            status, v = paired_equivalence(a, b, expected=None if t is None else t - b)
+        twin_shift(metric, a, t)
+        checks.append(
+            Check(
+                name=f"agreement.{metric}.{model}{label}",
+                status=status,
+                values=v,
+                tolerance=PAIRED_RULE if env is None else BOUNDED_RULE,
+                details=f"{what}; {details}",
+            )
+        )
+
+    def tw(name: str):
+        return None if mt is None else getattr(mt, name)
+
+    def ev(name: str):
+        return None if me is None else getattr(me, name)
+
+    paired("log10_rms", mf.log_rms, mr.log_rms, "log10 RMS of the balancing error (Fig. rms)",
+           tw("log_rms"), ev("log_rms"))  # fmt: skip
+    band_status, band_values = [], []
+    for k, fc in enumerate(mr.band_centres):
+        tb = None if mt is None else mt.band_log_power[:, k]
+        exp = None if tb is None else tb - mr.band_log_power[:, k]
+        if exp is not None and me is not None:
+            eb = me.band_log_power[:, k] - mr.band_log_power[:, k]
+            mg = bounded_margin(mf.band_log_power[:, k], mr.band_log_power[:, k], exp, eb)
+            st, v = paired_equivalence(mf.band_log_power[:, k], mr.band_log_power[:, k], mg)
+        else:
+            st, v = paired_equivalence(
+                mf.band_log_power[:, k], mr.band_log_power[:, k], expected=exp
+            )
+        if tb is not None:
+            twin_shift(f"spectrum_band_{k}", mf.band_log_power[:, k], tb)
+        band_status.append(st)
+        band_values.append({"centre_hz": float(fc), "status": st, **v})
+    checks.append(
+        Check(
+            name=f"agreement.spectrum_bands.{model}{label}",
+            status=worst(band_status),
+            values={"bands": band_values},
+            tolerance="paired TOST per log-spaced band of log10 PSD (margin as for the RMS); "
+            "worst band decides",
+            details=f"Welch PSD of the balancing error (Fig. pwsp); {details}",
+        )
+    )
+    slope_status = []
+    sv = {}
+    for which in ("slope_low", "slope_high"):
+        st, v = se_agreement(
+            getattr(mf.slopes, which),
+            getattr(mf.slopes, which + "_se"),
+            getattr(mr.slopes, which),
+            getattr(mr.slopes, which + "_se"),
+        )
+        slope_status.append(st)
+        sv[which] = {
+            "full": {"value": getattr(mf.slopes, which), "se": getattr(mf.slopes, which + "_se")},
+            "reduced": {
+                "value": getattr(mr.slopes, which),
+                "se": getattr(mr.slopes, which + "_se"),
+            },
+            **v,
+        }
+    checks.append(
+        Check(
+            name=f"agreement.spectral_slopes.{model}{label}",
+            status=worst(slope_status),
+            values=sv,
+            tolerance="bootstrap standard errors: pass within 2 sigma, fail beyond 3 sigma",
+            details=f"two power laws fitted to the mean spectrum (Fig. pwsp); {details}",
+        )
+    )
+    paired(
+        "stcc_peak_median",
+        mf.tau_hat_median,
+        mr.tau_hat_median,
+        "median first dominant STCC peak tau_hat of R(x_T', x_M') (Fig. sccpeak)",
+        tw("tau_hat_median"),
+        ev("tau_hat_median"),
+    )
+    paired(
+        "stcc_fast_fraction",
+        mf.fast_fraction,
+        mr.fast_fraction,
+        "fraction of windows with tau_hat < tau (Fig. sccpeak:pdf)",
+        tw("fast_fraction"),
+        ev("fast_fraction"),
+    )
+    paired(
+        "log10_velocity_sd",
+        mf.log_velocity_sd,
+        mr.log_velocity_sd,
+        "log10 SD of the velocity error (Fig. velo)",
+        tw("log_velocity_sd"),
+        ev("log_velocity_sd"),
+    )
+    if mt is not None:
+        for which in ("slope_low", "slope_high"):
+            diff = getattr(mf.slopes, which) - getattr(mt.slopes, which)
+            ok = abs(diff) <= TWIN_METRIC_FLOOR
+            shifts[which] = {"status": PASS if ok else FAIL, "difference": diff}
+        checks.append(
+            Check(
+                name=f"twin.metrics.{model}{label}",
+                status=worst([v["status"] for v in shifts.values()]),
+                values=shifts,
+                tolerance="every metric of the full model equals the exact twin's under the same "
+                f"noise: paired mean difference within its 95% CI + {TWIN_METRIC_FLOOR:g} "
+                "(agreement.TWIN_METRIC_FLOOR)",
+                details=details,
+            )
+        )
+    return checks
+
+
+#: Why a float32 engine's series runs at Profile.amplitude_float32 (the checks' details say it).
+FLOAT32_AMPLITUDE_RULE = (
+    "float32 resolves the coupled rod to about l * 6e-8 m, an error against the series that "
+    "falls as 1/amplitude, and the rigid body's nonlinear residual grows as amplitude^2: the "
+    "largest amplitude on a 1-3-10 grid at which float64 MuJoCo's twin metrics stay within "
+    "their floor over the profile's series (quick, 8 x 100 s: 1e-5 m, its spectral slopes "
+    "1.5e-6 to 4.6e-6 off at 3e-5 m; paper, 16 x 200 s: 3e-7 m; smoke, 3 x 45 s: 1e-4 m)"
+)
+
+
+def series_amplitude_note(profile: Profile, precision: str) -> str:
+    """Why the series runs at its amplitude, where the engine's precision sets it
+    (:meth:`validation.profiles.Profile.series_amplitude`); '' at the profile's own."""
+    if profile.series_amplitude(precision) == profile.amplitude:
+        return ""
+    rule = FLOAT32_AMPLITUDE_RULE
+    return f" ({precision}'s series amplitude; {profile.amplitude:g} m in float64: {rule})"
+
+
+#: Why a float32 engine's lambda1 runs at Profile.benettin_epsilon_float32 (the checks say it).
+FLOAT32_EPSILON_RULE = (
+    "float32 resolves the coupled rod's length (a tendon between tips about 1 m apart) to "
+    "about ulp(1 m) = 1.2e-7 m, as large as float64's deviation 1e-7 m: MuJoCo Warp's "
+    "lambda1 (coupled, beta 20.5, 3 x 20 s) is -0.45 1/s at 1e-7 m, 0.096 at 1e-6, 0.044 "
+    "at 1e-5, 3.3e-3 at 1e-4 and 9.7e-4 at 5e-4 m against float64 MuJoCo's 9.0e-4 (the same "
+    "to 3e-9 1/s from 1e-7 to 5e-4 m: linear); at 5e-4 m the angles stay below "
+    "epsilon / L = 1.1e-3 rad, sin theta = theta to theta^2 / 6 = 2e-7"
+)
+
+
+def lyapunov_epsilon_note(profile: Profile, precision: str) -> str:
+    """Why lambda1 runs at its Benettin deviation, where the engine's precision sets it
+    (:meth:`validation.profiles.Profile.lyapunov_epsilon`); '' at the float64 one."""
+    if profile.lyapunov_epsilon(precision) == profile.benettin_epsilon:
+        return ""
+    return (
+        f" ({precision}'s deviation; {profile.benettin_epsilon:g} m in float64: "
+        f"{FLOAT32_EPSILON_RULE})"
+    )
+
+
+def series_checks(
+    profile: Profile,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> tuple[list[Check], dict]:
+    """Time-series agreement at the paper's gains, small amplitude, and the direct checks.
+
+    Full vs reduced (the paper's model, margins from the known terms) and full vs
+    the exact twin (every metric), then :func:`instrument_checks` (twin trajectory
+    at 1e-6 m, rod, measured delay, declared model).
+    """
+    from validation.checks.conformance import run_envelope_twin
+
+    checks, data = [], {}
+    precision = rigid_engine(engine).capabilities.precision
+    amplitude = profile.series_amplitude(precision)
+    for model, beta in PAPER_BETA.items():
+        seed = profile.seed_for("series", model)
+        args = (
+            model, beta, amplitude, profile.series_duration,
+            profile.series_realizations, seed, profile.decimate, threads, files, engine,
+            integrator,
+        )  # fmt: skip
+        full, red = run_pair(*args)
+        twin = run_twin(*args)
+        env = run_envelope_twin(
+            *args[:8], fields=SERIES_FIELDS,
+            integrator=twin_integrator(model, files, engine, integrator),
+        )  # fmt: skip
+        mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
+        mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
+        mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
+        me = series_metrics(env, profile, 0.1, profile.spectrum_segment)
+        max_angle = float(np.max(full.attrs["max_abs_angle"]))
+        details = (
+            f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
+            f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
+            f"largest |theta| {max_angle:.2g} rad"
+        )
+        checks += compare_series(model, mf, mr, "", details, mt, me)
+        rel = trajectory_distance(full, red)
+        checks.append(
+            Check(
+                name=f"agreement.trajectory.{model}",
+                status=PASS if rel < 0.01 and max_angle < small_angle_limit() else FAIL,
+                values={"relative_l2": rel, "max_abs_angle": max_angle},
+                tolerance="relative L2 distance of the balancing errors < 1% over the first 10 s, "
+                "in the small-angle regime",
+                details=details,
+            )
+        )
+        data[model] = {"full": full, "reduced": red, "metrics_full": mf, "metrics_reduced": mr}
+    checks += instrument_checks(
+        profile.seed_for("twin"), profile.series_realizations, threads, files=files,
+        engine=engine, integrator=integrator,
+    )  # fmt: skip
+    return checks, data
+
+
+#: The departure the small-angle regime allows (cip.model.small_angle_limit: sin theta =
+#: theta to 0.1 %), in log10 units: added to the scan's paired margins, which resolve
+#: the angles' second-order terms (1e-4 in log10 RMS at 0.04 rad) well inside it.
+SMALL_ANGLE_FLOOR = float(np.log10(1.001))
+
+
+def amplitude_scan(
+    profile: Profile,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> tuple[list[Check], list[dict]]:
+    """Agreement of RMS, spectrum bands and trajectory vs initial amplitude.
+
+    Locates, per model and metric, the largest |theta| at which the models
+    still agree, and checks that they agree everywhere inside the small-angle
+    regime and disagree far outside it.  Whether a run is inside the regime is
+    judged by the reference (the reduced model under the same noise: |theta| =
+    arcsin(|e| / L)), never by the engine under test: a run whose engine leaves
+    the regime while the reference stays inside (a joint limit, a contact) is
+    listed and fails ``agreement.small_angle_regime``.  The margins' known terms
+    are bounded by the envelope twin (:mod:`validation.checks.conformance`).
+    """
+    from validation.checks.conformance import bounded_margin, run_envelope_twin
+    from validation.checks.divergence import pendulum_length
+
+    rows, checks = [], []
+    limit = small_angle_limit()
+    seg = profile.scan_duration / 4
+    for model, beta in PAPER_BETA.items():
+        seed = profile.seed_for("scan", model)
+        stepper = twin_integrator(model, files, engine, integrator)
+        for amp in profile.scan_amplitudes:
+            args = (
+                model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
+                profile.decimate, threads, files, engine, integrator,
+            )  # fmt: skip
+            full, red = run_pair(*args)
+            twin = run_twin(*args)
+            env = run_envelope_twin(
+                *args[:8], fields=("balancing_error",), integrator=stepper
+            )  # fmt: skip
+            ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
+            et, ee = twin["balancing_error"], env["balancing_error"]
+            rel = trajectory_distance(full, red)
+            dt = full.sample_interval
+            log_rms = [np.log10(metrics.rms(x[..., 0])) for x in (ef, er, et, ee)]
+            st_rms, v_rms = paired_equivalence(
+                log_rms[0], log_rms[1], bounded_margin(
+                    log_rms[0], log_rms[1], log_rms[2] - log_rms[1], log_rms[3] - log_rms[1],
+                    floor=SMALL_ANGLE_FLOOR,
+                ),
+            )  # fmt: skip
+            f, sf = metrics.power_spectrum(ef[..., 0], dt, segment=seg)
+            _, sr = metrics.power_spectrum(er[..., 0], dt, segment=seg)
+            _, st_ = metrics.power_spectrum(et[..., 0], dt, segment=seg)
+            _, se_ = metrics.power_spectrum(ee[..., 0], dt, segment=seg)
+            _, bf = metrics.band_log_power(f, sf, 2.0 / seg, profile.spectrum_band[1], 6)
+            _, br = metrics.band_log_power(f, sr, 2.0 / seg, profile.spectrum_band[1], 6)
+            _, bt = metrics.band_log_power(f, st_, 2.0 / seg, profile.spectrum_band[1], 6)
+            _, be = metrics.band_log_power(f, se_, 2.0 / seg, profile.spectrum_band[1], 6)
+            st_band = worst([
+                paired_equivalence(bf[:, k], br[:, k], bounded_margin(
+                    bf[:, k], br[:, k], bt[:, k] - br[:, k], be[:, k] - br[:, k],
+                    floor=SMALL_ANGLE_FLOOR,
+                ))[0]
+                for k in range(bf.shape[1])
+            ])  # fmt: skip
+            max_angle = float(np.max(full.attrs["max_abs_angle"]))
+            # the regime as the reference sees it: theta = arcsin(|e| / L), L = g / alpha
+            L_ref = pendulum_length(BalanceParams(beta=beta))
+            with np.errstate(invalid="ignore"):
+                e_max = float(np.nanmax(np.abs(er[..., 0])))
+            ref_angle = float(np.arcsin(min(1.0, e_max / L_ref)))
+            # the engine left the regime (beyond the regime's 1% trajectory tolerance on
+            # the angle) while the reference stayed inside it
+            engine_left = bool(ref_angle <= limit and max_angle > max(limit, 1.01 * ref_angle))
+            rows.append(
+                {
+                    "model": model,
+                    "amplitude": amp,
+                    "max_abs_angle": max_angle,
+                    "reference_max_abs_angle": ref_angle,
+                    "small_angle": ref_angle <= limit,
+                    "engine_left_regime": engine_left,
+                    "relative_l2": rel,
+                    "trajectory": PASS if rel < 0.01 else FAIL,
+                    "log10_rms": st_rms,
+                    "spectrum_bands": st_band,
+                    "rms_difference_ci95": v_rms.get("difference_ci95"),
+                    "twin_relative_l2": _relative_l2(ef, et),
+                    "fell": max_angle > np.pi / 2,
+                }
+            )
+    for model in PAPER_BETA:
+        mine = [r for r in rows if r["model"] == model]
+        inside = [r for r in mine if r["small_angle"]]
+        outside = [r for r in mine if not r["small_angle"]]
+        largest = {}
+        for metric in ("trajectory", "log10_rms", "spectrum_bands"):
+            # up to the first amplitude at which the metric stops agreeing
+            largest[metric] = None
+            for r in sorted(mine, key=lambda r: r["amplitude"]):
+                if r[metric] != PASS:
+                    break
+                largest[metric] = r["max_abs_angle"]
+        inside_ok = all(r[m] == PASS for r in inside for m in ("trajectory", "log10_rms"))
+        left = [r["amplitude"] for r in inside if r["engine_left_regime"]]
+        checks.append(
+            Check(
+                name=f"agreement.small_angle_regime.{model}",
+                status=PASS if inside and inside_ok and not left else FAIL,
+                values={
+                    "amplitudes": [r["amplitude"] for r in inside],
+                    "largest_agreeing_angle": largest,
+                    "engine_left_while_reference_inside": left,
+                },
+                tolerance=f"trajectory (rel. L2 < 1%) and RMS (paired equivalence) agree at every "
+                f"amplitude whose largest |theta| stays below {limit:.3f} rad in the reference "
+                "(the reduced model, same noise), and the engine stays inside there too",
+                details=f"beta {PAPER_BETA[model]}, {profile.scan_realizations} x "
+                f"{profile.scan_duration:g} s per amplitude",
+            )
+        )
+        far = [r for r in outside if r["reference_max_abs_angle"] > 3 * limit]
+        breaks = [r for r in far if r["trajectory"] == FAIL or r["log10_rms"] == FAIL]
+        checks.append(
+            Check(
+                name=f"agreement.breakdown_detected.{model}",
+                status=PASS if far and len(breaks) == len(far) else FAIL,
+                values={
+                    "far_amplitudes": [r["amplitude"] for r in far],
+                    "disagreeing": [r["amplitude"] for r in breaks],
+                },
+                tolerance=f"every amplitude reaching |theta| > {3 * limit:.2f} rad must disagree "
+                "(trajectory or RMS fails): the suite detects the end of the linear regime",
+                details="a suite that found agreement there would be blind",
+            )
+        )
+    return checks, rows
+
+
+def rod_length_study(
+    profile: Profile,
+    out_dir,
+    workers: int | None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> tuple[list[Check], list[dict], object]:
+    """The shipped rod-length study at the profile's size.
+
+    Check: in the linear regime (smallest amplitude) the rod length must not
+    matter (it drops out of the reduced model): with common random numbers,
+    each length's per-realisation trajectory distance, largest angle and RMS
+    are compared with those at l = L by the paired-equivalence rule.  The rows
+    report every metric per (l/L, amplitude); beyond the linear regime the
+    rigid rod's geometry is free to matter, and the rows show where it does.
+    """
+    import json
+    import os
+    import shutil
+    from pathlib import Path
+
+    import xarray as xr
+
+    from validation.sweep import Study, default_studies_dir, mean_ci, run_sweep
+
+    base = Study.from_toml(default_studies_dir() / "rod_length.toml").as_dict()
+    base.update(profile.rod_study)
+    base["engine"] = engine
+    if integrator is not None:
+        base["fixed"] = {**base.get("fixed", {}), "integrator": integrator}
+    study = Study(**base)
+    where = Path(out_dir) / "rod_length"
+    meta = where / "study.json"
+    if meta.exists() and json.loads(meta.read_text()).get("fingerprint") != study.fingerprint():
+        shutil.rmtree(where)  # another study or other package versions: never reuse
+    # in this process, its realisations on the run's threads: a point takes well under a
+    # second at the quick profile, less than a worker process's start-up (measured: the
+    # stage's wall time was 2.3x its CPU time with two worker processes)
+    rep = run_sweep(study, where, workers=1, point_threads=workers or os.cpu_count() or 1)
+    with xr.open_dataset(rep.dataset_path, engine="scipy") as f:
+        ds = f.load()
+    lengths = ds["rod_length_ratio"].values
+    ref = lengths[np.argmin(np.abs(lengths - 1.0))]
+    small = float(ds["amplitude"].min())
+    statuses, detail = [], {}
+    for metric in ("agreement", "max_angle", "rms"):
+        a = ds[metric].sel(amplitude=small)
+        for l_over_L in lengths:
+            st, v = paired_equivalence(
+                a.sel(rod_length_ratio=l_over_L).values, a.sel(rod_length_ratio=ref).values
+            )
+            statuses.append(st)
+            detail[f"{metric}.l/L={l_over_L:g}"] = {"status": st, **v}
+    checks = [
+        Check(
+            name="rod_length.independent_in_linear_regime",
+            status=worst(statuses),
+            values=detail,
+            tolerance=f"paired equivalence of each length against l/L = {ref:g} at amplitude "
+            f"{small:g} m (same noise at every point)",
+            details=f"{study.realizations} realisations x {study.duration:g} s per point, "
+            f"seed {study.seed}",
+        )
+    ]
+    rows = []
+    for point in study.points():
+        sel = {k: float(v) for k, v in point.items()}
+        row = dict(point)
+        for metric in ("agreement", "max_angle", "rms", "tau_hat"):
+            if metric in ds:
+                m, h = mean_ci(ds, metric)
+                row[metric] = float(m.sel(sel))
+                row[metric + "_ci95"] = float(h.sel(sel))
+                v = ds[metric].sel(sel).values.astype(float)  # heavy-tailed: also quantiles
+                v = v[np.isfinite(v)]
+                row[metric + "_q05_50_95"] = (
+                    np.quantile(v, (0.05, 0.5, 0.95)).tolist() if v.size else None
+                )
+        rows.append(row)
+    return checks, rows, ds
+
+
+# ------------------------------------------------------------------ the exact twin
+#: Initial balancing error (m) of the twin comparison: small enough that the
+#: terms the twin leaves out (second order in the angles) stay below 1e-10, large
+#: enough that the rod's absolute round-off (~1e-17 m) stays below it too.
+TWIN_AMPLITUDE = 1e-6
+TWIN_WINDOW = 10.0  # s
+# The twin and rod tolerances are the engine's own (cip.engines.rigid_body.RigidBodyEngine:
+# twin_tolerance, rod_tolerance), set from its measured floor.
+
+
+def rigid_engine(name: str):
+    """The registered rigid-body engine ``name`` (one line naming the reason if it is not one)."""
+    engine = get_engine(name)
+    if not engine.capabilities.rigid_body or not hasattr(engine, "twin_terms"):
+        raise ParameterError(
+            f"engine {name!r} is not a rigid-body engine: `run` validates a rigid-body engine "
+            "against the reduced model (`cip-validate engines` compares the others)"
+        )
+    return engine
+
+
+def model_file(model: str, files: dict[str, str] | None = None, integrator: str | None = None):
+    """The compiled model file of ``model`` (a user's ``--mjcf`` or the shipped one).
+
+    ``integrator`` (MuJoCo's names: Euler, implicit, implicitfast, RK4) replaces the
+    file's ``<option integrator>`` where given.
+    """
+    import mujoco
+
+    from cip.mjcf_params import INTEGRATOR_NAMES, load_model_file, shipped_model_path
+
+    m = load_model_file((files or {}).get(model) or shipped_model_path(model))
+    if integrator is not None:
+        enum = {v: k for k, v in INTEGRATOR_NAMES.items()}
+        if integrator not in enum:
+            raise ParameterError(f"integrator must be one of {', '.join(enum)}, got {integrator!r}")
+        m.opt.integrator = int(getattr(mujoco.mjtIntegrator, enum[integrator]))
+    return m
+
+
+def _relative_l2(a: np.ndarray, b: np.ndarray) -> float:
+    k = min(a.shape[1], b.shape[1])
+    return metrics.relative_l2(a[:, :k], b[:, :k])
+
+
+def measured_delay(model: str, params: BalanceParams, physical, mj_model, backend=None) -> int:
+    """The engine's delay in steps, read from its response (no noise).
+
+    The balancing error's history is zero before t = 0 and ``TWIN_AMPLITUDE`` at
+    t = 0: a step.  The run with the controller and one without it (beta = 0)
+    start from the same state; the first step after which the carts' velocities
+    differ is the first step whose control force is non-zero, the delay.  Any
+    one-step integrator that holds the control over a step (semi-implicit Euler,
+    implicit, RK4, SAP) first moves the velocity after the step whose control
+    changed, so the count assumes no stepper.  ``backend`` is the engine's
+    :class:`cip.runner.RolloutBackend` class.  Returns -1 if no force appears
+    within three delays.
+    """
+    from cip.runner import CIPRunner
+
+    vels = []
+    for beta in (params.beta, 0.0):
+        p = replace(params, beta=beta, nu=0.0)
+        r = CIPRunner(
+            model, p, physical, 1, TWIN_AMPLITUDE, threads=1, backend=backend, mj_model=mj_model
+        )
+        r.e_hist[:] = 0.0
+        r.edot_hist[:] = 0.0
+        chunks = [r.advance(np.zeros((1, r.d, r.nc)))[0][:, r.i_vx] for _ in range(3)]
+        vels.append(np.concatenate(chunks))
+    moved = np.flatnonzero(np.abs(vels[0] - vels[1]).max(axis=1) > 0)
+    return int(moved[0]) if moved.size else -1
+
+
+def twin_integrator(
+    model: str, files: dict[str, str] | None, engine: str, integrator: str | None
+) -> str:
+    """The stepper of ``engine``'s exact twin for ``model`` run with ``integrator``.
+
+    The specification's envelope twin steps with it, so that the agreement margins
+    admit the rigid body's known terms and not the integrator's own difference from
+    the reduced model's semi-implicit Euler step.
+    """
+    from cip.mjcf_params import read_mapping
+
+    mapping = read_mapping(model_file(model, files, integrator))
+    return rigid_engine(engine).twin_terms(mapping)["integrator"]
+
+
+def instrument_checks(
+    seed: int,
+    n_realizations: int,
+    threads: int | None = None,
+    *,
+    files: dict[str, str] | None = None,
+    fault=None,
+    models: tuple[str, ...] = MODEL_NAMES,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> list[Check]:
+    """Full model vs the engine's exact twin, the delay, the rod, the declared model.
+
+    ``files`` maps a model to a user's MJCF (default: the shipped files);
+    ``fault`` a :class:`validation.faults.catalogue.Fault` injected into the engine only;
+    ``engine`` the rigid-body engine (its twin, tolerances and rollout backend);
+    ``integrator`` the MuJoCo integrator run instead of the file's.
+    """
+    from cip.mjcf_params import read_mapping
+    from reduced.twin import TwinParams, simulate_twin
+
+    eng = rigid_engine(engine)
+    caps = eng.capabilities
+    checks = []
+    for model in models:
+        m = model_file(model, files, integrator)
+        mp = read_mapping(m)
+        if mp.model != model:
+            raise ParameterError(f"--mjcf: the file for {model!r} describes a {mp.model} model")
+        p = BalanceParams(beta=PAPER_BETA[model])
+        declared = {
+            "timestep": (mp.timestep, p.dt),
+            "alpha": (mp.alpha, p.alpha),
+            "gamma_tip": (mp.tip_damping, p.gamma),
+            "gamma_cart": (mp.cart_damping, p.gamma),
+        }
+        ok = all(abs(a - b) <= 1e-12 * abs(b) for a, b in declared.values())
+        # an engine that follows the file's integrator must support it; one with its
+        # own stepper (no integrators listed) runs what its capabilities declare
+        ok = ok and (not eng.integrators or mp.integrator in eng.integrators)
+        runs = mp.integrator if eng.integrators else caps.integrator
+        checks.append(
+            Check(
+                name=f"model.declared.{model}",
+                status=PASS if ok else FAIL,
+                values={k: {"model": a, "controller": b} for k, (a, b) in declared.items()}
+                | {"integrator": runs, "engine": engine, "twin": caps.twin},
+                tolerance="time step, g/L and dampings of the model file equal the "
+                "controller's dt, alpha, gamma to 1e-12 relative; the file's integrator is one "
+                "the engine steps and its twin follows "
+                f"({', '.join(eng.integrators) or 'the engine has its own: ' + caps.integrator})",
+                details=f"mapping read from the model file ({mp.model}, m/M = {mp.mass_ratio:g})",
+            )
+        )
+        if not ok:
+            continue  # the engine would run another model than the controller assumes
+        phys = mp.physical()
+        twin_p = TwinParams(**eng.twin_terms(mp))
+        pe, backend = p, eng.rollout()
+        noise = None
+        n_steps = round(TWIN_WINDOW / p.dt)
+        if fault is not None:
+            pe, backend = fault.engine_params(p), fault.backend(backend)
+            noise = fault.noise(seed, n_realizations, get_model(model).n_controllers, n_steps)
+        kw = {"amplitude": TWIN_AMPLITUDE, "threads": threads}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DivergenceWarning)
+            full = eng.simulate(
+                model,
+                pe,
+                TWIN_WINDOW,
+                n_realizations,
+                seed,
+                physical=phys,
+                mj_model=m,
+                backend=backend,
+                noise=noise,
+                fields=("balancing_error", "tip_position"),
+                **kw,
+            )
+        twin = simulate_twin(
+            model,
+            p,
+            twin_p,
+            TWIN_WINDOW,
+            n_realizations,
+            seed,
+            fields=("balancing_error", "tip_position"),
+            **kw,
+        )
+        ef, et = full["balancing_error"], twin["balancing_error"]
+        complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
+        rel = _relative_l2(ef, et)
+        details = (
+            f"engine {engine} ({twin_p.integrator}), amplitude {TWIN_AMPLITUDE:g} m, "
+            f"{n_realizations} x {TWIN_WINDOW:g} s, seed {seed}, same noise"
+        )
+        checks.append(
+            Check(
+                name=f"twin.trajectory.{model}",
+                status=PASS if complete and rel <= eng.twin_tolerance_for(model) else FAIL,
+                values={"relative_l2": rel, "complete": complete},
+                tolerance=f"relative L2 distance of the balancing errors to the engine's exact "
+                f"linear twin <= {eng.twin_tolerance_for(model):g} (the engine's twin_tolerance, "
+                "from its "
+                "measured floor)",
+                details=details,
+            )
+        )
+        if mp.n_controllers == 2:
+            sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
+            st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
+            checks.append(
+                rod_check(model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details)
+            )
+        expected = round(p.tau / m.opt.timestep)
+        got = measured_delay(model, pe, phys, m, backend)
+        checks.append(
+            Check(
+                name=f"delay.{model}",
+                status=PASS if got == expected else FAIL,
+                values={"measured_steps": got, "expected_steps": expected},
+                tolerance="a step in the balancing error reaches the control force exactly "
+                "tau / timestep steps later (timestep read from the model file)",
+                details=f"tau {p.tau:g} s, model timestep {m.opt.timestep:g} s, no noise",
+            )
+        )
+    return checks

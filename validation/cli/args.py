@@ -1,0 +1,382 @@
+"""Argument helpers shared by every ``cip-validate`` command.
+
+One job: turn command-line text into checked values *before* any work starts.
+Every bad value ends with exactly one line ``cip-validate: error: ...`` naming
+the option and the allowed range, and exit status 2 (:class:`CLIParser`,
+:func:`usage_error`); every option's help shows its default and unit
+(:class:`HelpFormatter`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import re
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, NoReturn
+
+from cipcore.models import MODEL_NAMES, get_model
+from cipcore.params import PAPER, BalanceParams, ParameterError, whole_steps
+from cipcore.registry import REFERENCE, engine_names
+
+EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+#: exit status after SIGINT / SIGTERM (128 + signal number, the shell's convention)
+EXIT_SIGINT, EXIT_SIGTERM = 130, 143
+PROG = "cip-validate"
+
+#: Work (realisation-steps: realisations x duration / dt, summed over gains) above which
+#: a command asks for ``--force``.  The paper profile's largest stage is ~6e8; at the
+#: rigid-body engine's ~1e6 realisation-steps/s per core, 2e10 is several hours.
+MAX_WORK = 2e10
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help that shows every option's default (units are in each help text)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_text = action.help or ""
+        if action.default is None and "%(default)" not in help_text:
+            return help_text  # "(default: None)" says nothing; the text says what happens
+        if isinstance(action, argparse._StoreTrueAction):
+            return help_text  # a flag: "(default: False)" says nothing either
+        return super()._get_help_string(action) or help_text
+
+
+#: a negative number is a value, not an option: -1, -1.5, -.5, -1e9, -2.5E-3, -inf, -nan
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
+
+
+class CLIParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line ``cip-validate: error: ...``, exit 2.
+
+    Also refuses an option given twice (the last would silently win) unless it is
+    meant to repeat (``action="append"``), and reads negative numbers such as
+    ``-1e9`` as values, not as options.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", HelpFormatter)
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = NEGATIVE_NUMBER
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        if args is not None:
+            self._refuse_repeats(list(args))
+        return super().parse_known_args(args, namespace)
+
+    def _refuse_repeats(self, args: list[str]) -> None:
+        """A usage error when one of this parser's options occurs twice in ``args``."""
+        commands: set[str] = set()
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                commands.update(action.choices)
+        repeatable = (argparse._AppendAction, argparse._CountAction, argparse._HelpAction,
+                      argparse._VersionAction)  # fmt: skip
+        seen: dict[str, str] = {}
+        for i, token in enumerate(args):
+            if token == "--" or token in commands:  # the rest belongs to a subcommand
+                return
+            option, eq, value = token.partition("=")
+            action = self._option_string_actions.get(option)
+            if action is None or isinstance(action, repeatable):
+                continue
+            if not eq and action.nargs != 0:
+                value = " ".join(args[i + 1 : i + 1 + (action.nargs or 1)]
+                                 if isinstance(action.nargs, int) or action.nargs is None
+                                 else args[i + 1 : i + 2])  # fmt: skip
+            if action.dest in seen:
+                both = f" ({seen[action.dest]!r}, then {value!r})" if value else ""
+                usage_error(f"{option} is given twice{both}; give it once")
+            seen[action.dest] = value
+
+    def error(self, message: str) -> NoReturn:
+        usage_error(message)
+
+
+def usage_error(message: str) -> NoReturn:
+    """Print ``cip-validate: error: message`` (one line) and exit with status 2."""
+    import sys
+
+    text = " ".join(str(message).split())
+    print(f"{PROG}: error: {text}", file=sys.stderr)
+    raise SystemExit(EXIT_USAGE)
+
+
+# ------------------------------------------------------------ value types
+def positive_int(text: str) -> int:
+    """An integer >= 1 (argparse type)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return v
+
+
+def int_at_least(minimum: int):
+    """argparse type: an integer >= ``minimum``."""
+
+    def convert(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected an integer >= {minimum}, got {text!r}"
+            ) from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text!r}")
+        return v
+
+    return convert
+
+
+def nonnegative_int(text: str) -> int:
+    """An integer >= 0 (argparse type)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
+    return v
+
+
+def finite_float(text: str) -> float:
+    """A finite number (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (argparse type)."""
+    v = finite_float(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0 (argparse type)."""
+    v = finite_float(text)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def grid(text: str) -> tuple[float, float, int]:
+    """``LOW:HIGH:N``: N >= 2 evenly spaced values from LOW < HIGH (argparse type)."""
+    try:
+        lo, hi, n = text.split(":")
+        lo_f, hi_f, n_i = float(lo), float(hi), int(n)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected LOW:HIGH:N, got {text!r}") from None
+    if not (math.isfinite(lo_f) and math.isfinite(hi_f) and lo_f < hi_f):
+        raise argparse.ArgumentTypeError(f"needs finite LOW < HIGH, got {text!r}")
+    if not 2 <= n_i <= 10_000:
+        raise argparse.ArgumentTypeError(f"N must be an integer in [2, 10000], got {text!r}")
+    return lo_f, hi_f, n_i
+
+
+# ---------------------------------------------------------- option groups
+def add_model_args(p: argparse.ArgumentParser, *, beta: bool = True) -> None:
+    """--model and the reduced-model parameters (paper values as defaults)."""
+    p.add_argument("--model", choices=MODEL_NAMES, default=MODEL_NAMES[0],
+                   help="balancing model: " + "; ".join(
+                       f"{m} = {get_model(m).description}" for m in MODEL_NAMES))  # fmt: skip
+    if beta:
+        p.add_argument("--beta", type=finite_float, required=True,
+                       help="feedback gain beta (1/s^2), required")  # fmt: skip
+    p.add_argument("--alpha", type=finite_float, default=PAPER["alpha"],
+                   help="g/L (1/s^2)")  # fmt: skip
+    p.add_argument("--gamma", type=finite_float, default=PAPER["gamma"],
+                   help="damping gamma (1/s)")  # fmt: skip
+    p.add_argument("--nu", type=finite_float, default=PAPER["nu"],
+                   help="noise strength nu (s^1/2)")  # fmt: skip
+    p.add_argument("--tau", type=finite_float, default=PAPER["tau"], help="delay tau (s)")
+    p.add_argument("--dt", type=finite_float, default=PAPER["dt"], help="time step (s)")
+
+
+def add_run_args(p: argparse.ArgumentParser, duration: float, realizations: int) -> None:
+    """--duration, --realizations, --seed, --threads, --force."""
+    p.add_argument("--duration", type=positive_float, default=duration,
+                   help="simulated time per realisation (s)")  # fmt: skip
+    p.add_argument("--realizations", type=positive_int, default=realizations,
+                   help="independent noise realisations (count)")  # fmt: skip
+    p.add_argument("--seed", type=nonnegative_int, default=0,
+                   help="root seed: fixes every random draw (integer >= 0)")  # fmt: skip
+    add_threads_arg(p)
+    add_force_arg(p)
+
+
+def add_threads_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=positive_int, default=None,
+                   help="worker threads (count >= 1; default: all cores); "
+                   "results do not depend on it")  # fmt: skip
+
+
+def add_force_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--force", action="store_true",
+                   help=f"run even when the estimated work exceeds {MAX_WORK:.0e} "
+                   "realisation-steps")  # fmt: skip
+
+
+def add_engine_arg(p: argparse.ArgumentParser, default: str | None = REFERENCE) -> None:
+    """--engine NAME from :func:`cipcore.registry.engine_names`."""
+    names = engine_names()
+    p.add_argument("--engine", choices=names, default=default,
+                   help="engine from the registry (an engine not installed here is refused "
+                   "with the reason)")  # fmt: skip
+
+
+def add_json_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def params_from_args(
+    a: argparse.Namespace, beta: float | None = None, beta_option: str = "--beta"
+) -> BalanceParams:
+    """The :class:`BalanceParams` of the parsed options (checked by BalanceParams).
+
+    An error names the option as typed (``--tau``), or ``beta_option`` when ``beta`` is
+    given (e.g. ``--beta-range``).
+    """
+    try:
+        return BalanceParams(
+            beta=a.beta if beta is None else beta, alpha=a.alpha, gamma=a.gamma, nu=a.nu,
+            tau=a.tau, dt=a.dt,
+        )  # fmt: skip
+    except ParameterError as exc:
+        text = str(exc)
+        name = text.split(" ", 1)[0]
+        if name == "beta" and beta is not None:
+            raise ParameterError(f"{beta_option}: {text}") from None
+        if name in ("beta", "alpha", "gamma", "nu", "tau", "dt"):
+            raise ParameterError(f"--{text}") from None
+        raise
+
+
+def dump(obj: Any) -> str:
+    """One line of JSON (NaN and inf as null)."""
+    from validation.report.document import jsonable
+
+    return json.dumps(jsonable(obj))
+
+
+# ------------------------------------------------------------ work checks
+def check_work(
+    option: str,
+    realizations: int,
+    duration: float,
+    dt: float,
+    *,
+    runs: int = 1,
+    force: bool = False,
+) -> float:
+    """Estimated work in realisation-steps; a usage error above :data:`MAX_WORK` unless forced.
+
+    ``runs`` multiplies (e.g. gains of a critical-gain search, grid points of a sweep).
+    """
+    whole_steps(option, duration, dt)  # before any work: the engines step whole dt
+    work = float(realizations) * runs * duration / dt
+    if work > MAX_WORK and not force:
+        raise ParameterError(
+            f"{option}: estimated work {work:.3g} realisation-steps "
+            f"({realizations} realisations x {runs} run(s) x {duration:g} s / dt {dt:g} s) "
+            f"exceeds {MAX_WORK:.0e}; lower it or pass --force"
+        )
+    return work
+
+
+# ------------------------------------------------------------ output paths
+def _probe(directory: Path) -> str | None:
+    """None when a file can be created in ``directory`` (tried, then removed), else why not."""
+    import tempfile
+
+    try:
+        fd, name = tempfile.mkstemp(prefix=".cipval-probe-", dir=directory)
+    except OSError as exc:
+        return exc.strerror or str(exc)
+    os.close(fd)
+    os.unlink(name)
+    return None
+
+
+def check_out_file(option: str, path: str | Path, suffixes: tuple[str, ...] = ()) -> Path:
+    """An output file: right extension, not a directory, in a directory we can write.
+
+    Checked by creating (and removing) a probe file there, so it holds for root too.
+    """
+    p = Path(path)
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise ParameterError(
+            f"{option} must name a {' or '.join(suffixes)} file, got {str(path)!r}"
+        )
+    if p.is_dir():
+        raise ParameterError(f"{option}: {str(path)!r} is a directory, expected a file")
+    parent = p.parent
+    if not parent.is_dir():
+        why = "is not a directory" if parent.exists() else "does not exist"
+        raise ParameterError(f"{option}: cannot write {str(path)!r}: {str(parent)!r} {why}")
+    why = _probe(parent)
+    if why is not None:
+        raise ParameterError(f"{option}: cannot write in {str(parent)!r} ({why})")
+    if p.exists() and not os.access(p, os.W_OK):
+        raise ParameterError(f"{option}: cannot write {str(path)!r}: file is not writable")
+    return p
+
+
+def check_out_dir(option: str, path: str | Path) -> Path:
+    """An output directory we can write in: created here (with parents) if absent."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ParameterError(f"{option}: {str(path)!r} exists and is not a directory")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParameterError(
+            f"{option}: cannot create directory {str(path)!r} ({exc.strerror or exc})"
+        ) from None
+    why = _probe(p)
+    if why is not None:
+        raise ParameterError(f"{option}: cannot write in directory {str(path)!r} ({why})")
+    return p
+
+
+# ---------------------------------------------------------------- signals
+@contextmanager
+def interrupt_signals() -> Iterator[dict]:
+    """Turn SIGINT and SIGTERM into KeyboardInterrupt; the dict names the signal received.
+
+    Installed explicitly, so that it works even where a parent process started
+    us with SIGINT ignored.
+    """
+    got: dict[str, int | None] = {"signal": None}
+
+    def handler(signum: int, frame: object) -> None:
+        got["signal"] = signum
+        raise KeyboardInterrupt
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield got
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def interrupted_status(got: dict) -> tuple[str, int]:
+    """(signal name, exit status) after :func:`interrupt_signals` caught one."""
+    if got.get("signal") == signal.SIGTERM:
+        return "SIGTERM", EXIT_SIGTERM
+    return "SIGINT", EXIT_SIGINT

@@ -1,0 +1,254 @@
+"""Commands on lambda1 and stability: lyapunov, critical-gain, stability."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from cipcore.params import STEPPERS, BalanceParams, ParameterError
+from cipcore.registry import get_engine
+from validation.checks.divergence import lyapunov_events, summary
+from validation.cli.args import (
+    EXIT_OK,
+    add_engine_arg,
+    add_json_arg,
+    add_model_args,
+    add_run_args,
+    check_out_file,
+    check_work,
+    dump,
+    finite_float,
+    grid,
+    int_at_least,
+    params_from_args,
+    positive_int,
+)
+from validation.cli.ci_options import progress_enabled
+
+PLOT_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def engine_options(a: argparse.Namespace, engine) -> dict:
+    """Engine keyword options from the command line (``--stepper``: the reference only)."""
+    kw = {}
+    if getattr(a, "stepper", None) is not None:
+        if engine.capabilities.rigid_body:
+            raise ParameterError(
+                f"--stepper applies to the reduced reference only; {engine.name!r} is a "
+                "rigid-body engine (its integrator is a physical setting)"
+            )
+        kw["stepper"] = a.stepper
+    return kw
+
+
+def add_stepper_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--stepper",
+        choices=STEPPERS,
+        default=None,
+        help="reduced engine's stepper: semi-implicit (like MuJoCo Euler) or "
+        "explicit Euler-Maruyama (default: semi-implicit)",
+    )
+
+
+# ---------------------------------------------------------------- lyapunov
+def check_lyapunov_duration(a: argparse.Namespace, tau: float, dt: float) -> None:
+    """--duration must leave one renormalisation interval (tau) after the transient."""
+    from cipcore.results import min_lyapunov_duration
+
+    shortest = min_lyapunov_duration(tau, dt)
+    if a.duration < shortest:
+        raise ParameterError(
+            f"--duration must be >= {shortest:g} s for lambda1 (one renormalisation interval "
+            f"tau = {tau:g} s after the transient, duration/10), got {a.duration:g}"
+        )
+
+
+def cmd_lyapunov(a: argparse.Namespace) -> int:
+    params = params_from_args(a)
+    check_lyapunov_duration(a, params.tau, params.dt)
+    engine = get_engine(a.engine)
+    kw = engine_options(a, engine)
+    check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
+    res = engine.lyapunov(
+        a.model,
+        params,
+        a.duration,
+        a.realizations,
+        a.seed,
+        threads=a.threads,
+        progress=not a.json and progress_enabled(),
+        **kw,
+    )
+    events = lyapunov_events(res.per_realization)
+    d = res.as_dict()
+    d["engine"] = a.engine
+    d["divergence"] = [e.as_dict() for e in events]
+    if a.json:
+        print(dump(d))
+    else:
+        lo, hi = res.ci95
+        print(
+            f"lambda1 = {res.lambda1:.4e} 1/s  (95 % CI [{lo:.4e}, {hi:.4e}], "
+            f"{len(res.per_realization)} realisations x {res.duration:g} s, "
+            f"{a.engine} {a.model}, beta = {a.beta})"
+        )
+        line = summary(events, len(res.per_realization))
+        if line:
+            print(f"warning: {line}")
+    return EXIT_OK
+
+
+# --------------------------------------------------------- critical gain
+def cmd_critical_gain(a: argparse.Namespace) -> int:
+    from reduced.lyapunov import critical_gain
+
+    lo, hi = a.beta_range
+    if not lo < hi:
+        raise ParameterError(f"--beta-range needs LOW < HIGH (1/s^2), got {lo:g} {hi:g}")
+    params = params_from_args(a, beta=lo, beta_option="--beta-range")
+    params_from_args(a, beta=hi, beta_option="--beta-range")
+    check_lyapunov_duration(a, params.tau, params.dt)
+    check_work("--duration", a.realizations, a.duration, params.dt, runs=a.gains, force=a.force)
+    res = critical_gain(
+        a.model,
+        params,
+        (lo, hi),
+        target=a.target,
+        n_gains=a.gains,
+        duration=a.duration,
+        n_realizations=a.realizations,
+        seed=a.seed,
+        threads=a.threads,
+        progress=progress_enabled(),
+    )
+    if a.json:
+        print(dump(res.as_dict()))
+    else:
+        print(
+            f"beta* = {res.beta_star:.3f} +- {res.std:.3f} (95 % CI [{res.ci95[0]:.3f}, "
+            f"{res.ci95[1]:.3f}]) for lambda1 = {res.target:g} 1/s ({a.model}, "
+            f"{res.n_realizations} realisations x {res.duration:g} s)"
+        )
+        for b, lam, ci in zip(res.betas, res.lambdas, res.ci95s, strict=True):
+            print(f"  beta {b:8.3f}  lambda1 {lam:+.3e}  [{ci[0]:+.3e}, {ci[1]:+.3e}]")
+    return EXIT_OK
+
+
+# -------------------------------------------------------------- stability
+def cmd_stability(a: argparse.Namespace) -> int:
+    from reduced.stability import characteristic_roots, stability_region
+
+    p = BalanceParams(beta=a.beta, alpha=a.alpha, gamma=a.gamma, nu=0.0, tau=a.tau, dt=a.dt)
+    if a.tau_grid[0] <= 0:
+        raise ParameterError(f"--tau-grid: delays must be > 0 s, got LOW = {a.tau_grid[0]:g}")
+    if a.plot:
+        check_out_file("--plot", a.plot, PLOT_SUFFIXES)
+    roots = characteristic_roots(a.model, p, n_roots=a.roots)
+    out = {
+        "model": a.model,
+        "params": p.as_dict(),
+        "rightmost_root": [roots.rightmost.real, roots.rightmost.imag],
+        "abscissa": roots.abscissa,
+        "stable": roots.abscissa < 0,
+        "roots": [[z.real, z.imag] for z in roots.roots],
+    }
+    if a.plot:
+        from validation.report.plots import plot_stability_region
+
+        betas = np.linspace(*a.beta_grid)
+        taus = np.linspace(*a.tau_grid)
+        region = stability_region(a.model, p, betas, taus)
+        plot_stability_region(betas, taus, region, a.model, Path(a.plot))
+        out["plot"] = str(a.plot)
+    if a.json:
+        print(dump(out))
+    else:
+        word = "stable" if out["stable"] else "unstable"
+        print(f"{a.model}, nu = 0, beta = {a.beta}, tau = {a.tau}: {word}")
+        print(f"rightmost root s = {roots.rightmost:.6g} 1/s")
+        for z in roots.roots[1:]:
+            print(f"               s = {z:.6g}")
+        if a.plot:
+            print(f"stability region plot: {a.plot}")
+    return EXIT_OK
+
+
+# ------------------------------------------------------------------ parser
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "lyapunov",
+        help="largest Lyapunov exponent lambda1 (mean, 95 %% CI)",
+        description="lambda1 (1/s) of any registered engine: Benettin's method "
+        "over the delay history, mean over realisations and Student-t 95 % "
+        "CI.",
+    )
+    add_model_args(p)
+    add_run_args(p, duration=200.0, realizations=8)
+    add_engine_arg(p)
+    add_stepper_arg(p)
+    add_json_arg(p)
+    p.set_defaults(func=cmd_lyapunov)
+
+    p = sub.add_parser(
+        "critical-gain",
+        help="beta* where lambda1 equals a target (paper: 5e-4)",
+        description="beta* (1/s^2) where lambda1 of the reduced model crosses "
+        "the target (paper Fig. 3: 5e-4 1/s).",
+    )
+    add_model_args(p, beta=False)
+    add_run_args(p, duration=500.0, realizations=16)
+    p.add_argument(
+        "--beta-range",
+        type=finite_float,
+        nargs=2,
+        metavar=("LOW", "HIGH"),
+        required=True,
+        help="gains searched (1/s^2), LOW < HIGH, required",
+    )
+    p.add_argument("--target", type=finite_float, default=5e-4, help="lambda1 target (1/s)")
+    p.add_argument(
+        "--gains",
+        type=int_at_least(2),
+        default=7,
+        help="gains evaluated over the range (count >= 2)",
+    )
+    add_json_arg(p)
+    p.set_defaults(func=cmd_critical_gain)
+
+    p = sub.add_parser(
+        "stability",
+        help="noise-free characteristic roots and stability region",
+        description="Rightmost characteristic roots of the noise-free reduced "
+        "model (nu = 0) and, with --plot, its stability region in (beta, tau).",
+    )
+    add_model_args(p)
+    p.add_argument(
+        "--roots",
+        type=positive_int,
+        default=5,
+        help="how many rightmost roots to print (count >= 1)",
+    )
+    p.add_argument(
+        "--plot",
+        metavar="FILE.png",
+        help="draw the stability region in (beta, tau) to this .png, .pdf or .svg",
+    )
+    p.add_argument(
+        "--beta-grid",
+        type=grid,
+        default="0:80:81",
+        metavar="LOW:HIGH:N",
+        help="gains of the region plot (1/s^2; N >= 2 points)",
+    )
+    p.add_argument(
+        "--tau-grid",
+        type=grid,
+        default="0.01:0.3:59",
+        metavar="LOW:HIGH:N",
+        help="delays of the region plot (s; N >= 2 points)",
+    )
+    add_json_arg(p)
+    p.set_defaults(func=cmd_stability)

@@ -1,0 +1,116 @@
+"""``cip-validate engines``: every engine through the same checks, one table."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import sys
+
+from cip.quiet import stdout_to_stderr
+from cipcore.registry import engine_names
+from validation.cli.args import add_threads_arg, check_out_dir, check_out_file, nonnegative_int
+from validation.cli.ci_options import add_ci_options, run_environment
+from validation.cli.engine_options import INTEGRATORS, add_engine_cmd_arg, register_engine_cmd
+from validation.profiles import PROFILES
+
+EXIT_OK, EXIT_FAIL = 0, 1
+
+
+def cmd_engines(a: argparse.Namespace) -> int:
+    from cipcore.params import ParameterError
+    from validation.engines import compare_engines, parse_engines, write_engine_reports
+
+    cmd_engine = register_engine_cmd(a.engine_cmd)
+    if cmd_engine is not None:  # the reference, MuJoCo (the speed baseline) and the command
+        names = [n for n in parse_engines(a.engines or "reduced,mujoco") if n != cmd_engine]
+        names.append(cmd_engine)
+    else:
+        names = parse_engines(a.engines)
+    if a.threads is not None and a.threads < 1:
+        raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
+    if a.integrator is not None and a.integrator not in INTEGRATORS:
+        raise ParameterError(
+            f"--integrator must be one of {', '.join(INTEGRATORS)}, got {a.integrator!r}"
+        )
+    out = check_out_dir("--out", a.out)  # checked before any work
+    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    quiet = a.json or a.quiet
+    say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
+    try:
+        # an engine's import banner (warp's) must not corrupt the JSON on stdout
+        with stdout_to_stderr() if a.json else contextlib.nullcontext():
+            results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
+                                      integrator=a.integrator, selftest=a.selftest)  # fmt: skip
+    except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
+        from validation.cli.exitcodes import EXIT_CRASH
+
+        print(f"cip-validate: an engine crashed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_CRASH
+    write_engine_reports(results, out, figures=not a.no_figures)
+    if junit:
+        from validation.cli.junit import engines_cases, write_junit
+
+        write_junit(engines_cases(results), junit)
+    if a.json:
+        from validation import engines as cross
+        from validation.report.document import jsonable
+
+        # the engine's own twin and rod tolerances are in its row; the run's checks in
+        # each row's "checks" carry theirs
+        tolerances = {"linearization_residual": cross.LINEARIZATION_TOLERANCE}
+        doc = {"cipval_engines": 1, **results, "tolerances": tolerances, **run_environment()}
+        print(json.dumps(jsonable(doc)))
+    else:
+        for r in results["engines"]:
+            if r["status"] == "skipped":
+                print(f"{r['engine']:12s} skipped: {r['reason']}")
+                continue
+            tp = r["throughput"]
+            ratio = tp.get("ratio_to_mujoco")
+            tw = r.get("twin_distance")
+            dist = (f"twin distance single {tw['single']:.3g} coupled {tw['coupled']:.3g}"
+                    if tw else "reference distance coupled "
+                    f"{r['trajectory_distance']['coupled']:.3g}")  # fmt: skip
+            print(
+                f"{r['engine']:12s} {r['status']:12s} {dist}  "
+                f"{tp['realization_steps_per_s']:.3g} steps/s"
+                + (f" ({ratio:.3g} x MuJoCo CPU)" if ratio is not None else "")
+            )
+            if r["failed"]:
+                print(f"{'':12s} failed: {', '.join(r['failed'])}")
+        print(f"report: {out / 'report.md'}")
+    return EXIT_OK if results["status"] != "fail" else EXIT_FAIL
+
+
+def add_engines_command(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "engines",
+        help="validate every registered engine through the run's checks, one table",
+        description="Run every registered engine (or --engines) through the checks of "
+        "`cip-validate run` (its exact twin, the delay, the rod, the declared model, the "
+        "agreement with the reduced reference on the same seeds) and list them in one table "
+        "with throughput (realisation-steps/s) in DIR/report.md and report.html; an engine "
+        "not installed here is skipped with the reason.",
+    )
+    registered = ", ".join(engine_names())
+    p.add_argument("--engines", metavar="A,B,...",
+                   help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
+    p.add_argument("--profile", choices=tuple(PROFILES), default="quick",
+                   help="sizes of the checks (the profiles of `cip-validate run`)")  # fmt: skip
+    p.add_argument("--seed", type=nonnegative_int, default=None,
+                   help="root seed of every noise draw (integer >= 0; default: the "
+                   "profile's)")  # fmt: skip
+    p.add_argument("--integrator", default=None, metavar="NAME",
+                   help=f"MuJoCo integrator for engines that follow the model file "
+                   f"({', '.join(INTEGRATORS)}; default: the file's)")  # fmt: skip
+    p.add_argument("--selftest", action="store_true",
+                   help="also inject the fault catalogue into each rigid-body engine")  # fmt: skip
+    add_threads_arg(p)
+    p.add_argument("--out", default="cip-engines-out", metavar="DIR",
+                   help="output directory (created if absent; must be writable)")  # fmt: skip
+    p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_ci_options(p, verbose=False)
+    add_engine_cmd_arg(p)
+    p.set_defaults(func=cmd_engines)

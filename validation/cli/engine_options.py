@@ -1,0 +1,93 @@
+"""``--engine`` and ``--integrator`` of the commands that validate one rigid-body engine.
+
+``run``, ``selftest`` and ``baseline`` validate the engine named by ``--engine``
+(any rigid-body engine of :mod:`cipcore.registry`, MuJoCo by default) with the
+same stages, checks and tolerances; ``--integrator`` steps the model file with
+another of MuJoCo's integrators (Euler, implicit, implicitfast, RK4), for the
+engines that follow the file's integrator, and the exact twin follows it.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from cipcore.params import ParameterError
+from cipcore.registry import check_engine_name, engine_names
+
+#: MuJoCo's integrator names, as the MJCF spells them.
+INTEGRATORS = ("Euler", "implicit", "implicitfast", "RK4")
+
+
+#: The registry name of the engine given by ``--engine-cmd``.
+COMMAND_ENGINE = "command"
+
+
+def add_engine_cmd_arg(p: argparse.ArgumentParser) -> None:
+    """Add ``--engine-cmd "CMD ARGS"`` (the chunk exchange protocol, :mod:`cip.engines.process`)."""
+    p.add_argument(
+        "--engine-cmd", metavar='"CMD ARGS"',
+        help="an engine in another program, driven over stdin/stdout by the chunk exchange "
+        f"protocol (README: Engines in other programs); registered as {COMMAND_ENGINE!r}",
+    )  # fmt: skip
+
+
+def register_engine_cmd(command: str | None) -> str | None:
+    """Register ``--engine-cmd``'s engine; its registry name, or None without one."""
+    if command is None:
+        return None
+    from cip.engines.process import process_engine
+    from cipcore.registry import register_engine
+
+    register_engine(COMMAND_ENGINE, process_engine(command, COMMAND_ENGINE))
+    return COMMAND_ENGINE
+
+
+def add_engine_options(p: argparse.ArgumentParser) -> None:
+    """Add ``--engine``, ``--engine-cmd`` and ``--integrator`` to a command's parser."""
+    p.add_argument(
+        "--engine",
+        default=None,
+        metavar="NAME",
+        help=f"the rigid-body engine to validate ({', '.join(engine_names())}; default mujoco)",
+    )
+    add_engine_cmd_arg(p)
+    p.add_argument(
+        "--integrator",
+        default=None,
+        metavar="NAME",
+        help=f"step the model file with this MuJoCo integrator ({', '.join(INTEGRATORS)}; "
+        "default: the file's <option integrator>); engines with their own stepper refuse it",
+    )
+
+
+def check_engine_options(a: argparse.Namespace) -> None:
+    """Refuse, in one line, an unknown or unavailable engine or an integrator it cannot run.
+
+    ``--engine-cmd`` registers the external engine and names it in ``a.engine``;
+    without either option the engine is MuJoCo.
+    """
+    from validation.checks.agreement import rigid_engine
+
+    command = getattr(a, "engine_cmd", None)
+    if command is not None:
+        if a.engine is not None:
+            raise ParameterError(
+                "--engine and --engine-cmd both name the engine to validate; give one"
+            )
+        a.engine = register_engine_cmd(command)
+    elif a.engine is None:
+        a.engine = "mujoco"
+
+    check_engine_name(a.engine)
+    eng = rigid_engine(a.engine)  # availability and rigid body, one line each
+    if a.integrator is None:
+        return
+    if a.integrator not in INTEGRATORS:
+        raise ParameterError(
+            f"--integrator must be one of {', '.join(INTEGRATORS)}, got {a.integrator!r}"
+        )
+    if a.integrator not in eng.integrators:
+        have = ", ".join(eng.integrators) or f"none: it steps with {eng.capabilities.integrator}"
+        raise ParameterError(
+            f"--integrator {a.integrator}: engine {a.engine!r} steps the file with ({have})"
+        )

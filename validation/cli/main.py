@@ -1,0 +1,207 @@
+"""``cip-validate``: the command line of the suite.
+
+Subcommands are thin: they parse, check every input, call the library, and
+print.  One module per command group (:mod:`validation.cli.commands`), shared
+argument helpers in :mod:`validation.cli.args`.  Exit status
+(:mod:`validation.cli.exitcodes`): 0 when no check fails, 1 when a validation check
+fails, 2 for a usage error (one line ``cip-validate: error: ...`` naming the
+parameter and its allowed range), 3 when a regression number moved, 4 when
+the engine crashed (partial results kept), 130 / 143 after SIGINT / SIGTERM
+(finished work kept).  An output that cannot be
+written (full disk, read-only file system, quota) is also exit 2, one line naming
+the file; outputs are written atomically (:mod:`cipcore.atomic`), so nothing is
+left under its name, and the line says where finished work was kept or what was lost.
+
+Start-up is lazy: ``--help``, ``--version`` and an unknown command import no
+command module (the top-level help lists :data:`COMMANDS`, name and one-line
+help); ``cip-validate NAME ...`` imports only NAME's module and registers only
+NAME's parser.  Command modules keep their heavy imports (scipy submodules,
+engines, numba kernels) inside the functions that need them, so a command's
+``--help`` and its argument errors stay fast as well.
+
+Registering a command is one line in :data:`COMMANDS`::
+
+    "name": ("validation.module", "one-line help"),
+
+(``"validation.module:function"`` when the function is not called ``register``).
+``register(sub)`` is the module's usual ``sub.add_parser("name", help=...)``
+registration (it may register several commands; only the one asked for is kept);
+the help text in the table must equal the one given to ``add_parser`` (a test
+checks it), because the top-level help shows the table's text without importing
+the module.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+from cipcore.atomic import WriteError
+from validation.cli.args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
+
+__all__ = ["COMMANDS", "EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
+
+#: Every command, in the order of the top-level help: name -> ("module[:function]", help);
+#: the function ``register`` unless named.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "lyapunov": (
+        "validation.cli.commands.analysis",
+        "largest Lyapunov exponent lambda1 (mean, 95 %% CI)",
+    ),
+    "critical-gain": (
+        "validation.cli.commands.analysis",
+        "beta* where lambda1 equals a target (paper: 5e-4)",
+    ),
+    "stability": (
+        "validation.cli.commands.analysis",
+        "noise-free characteristic roots and stability region",
+    ),
+    "linearize": (
+        "validation.cli.commands.simulation",
+        "A, B of the MuJoCo CIP beside the reduced model's",
+    ),
+    "simulate": ("validation.cli.commands.simulation", "time series of any engine to a .npz file"),
+    "run": (
+        "validation.cli.commands.suite",
+        "the validation suite: checks, paper table, figures, report",
+    ),
+    "baseline": ("validation.cli.commands.suite", "write a baseline results file for --baseline"),
+    "sweep": (
+        "validation.cli.commands.sweeping",
+        "parameter study over a grid (resumable; local or Dask)",
+    ),
+    "sweep-plot": (
+        "validation.cli.commands.sweeping",
+        "a sweep metric against a parameter, with 95 %% bands",
+    ),
+    "sweep-export": (
+        "validation.cli.commands.sweeping",
+        "a sweep dataset as CSV (one row per point and realisation)",
+    ),
+    "render": (
+        "validation.cli.commands.viewing",
+        "a GIF or MP4 of a simulated run (offscreen MuJoCo)",
+    ),
+    "view": ("validation.cli.commands.viewing", "MuJoCo's interactive viewer on a simulated run"),
+    "engines": (
+        "validation.cli.commands.engines:add_engines_command",
+        "validate every registered engine through the run's checks, one table",
+    ),
+    "contract": (
+        "validation.cli.commands.contract",
+        "the engine contract (reduced trajectory, delay, rod, energy, batch split)",
+    ),
+    "case": (
+        "validation.cli.commands.case",
+        "file protocol for engines that run the controller themselves",
+    ),
+    "experiment": ("validation.experiment.cli", "the paper's experiment: serve, analyze, bots"),
+    "selftest": (
+        "validation.faults.selftest:register_selftest",
+        "inject each catalogued fault; show which check flags it",
+    ),
+}
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("cipval")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+class _OnlyOne:
+    """The subparsers action as a register function sees it, keeping one command's parser.
+
+    A module's register function adds all of its group's commands; the others go to a
+    throw-away parser, so their names stay the table's stubs.
+    """
+
+    def __init__(self, sub: argparse._SubParsersAction, name: str) -> None:
+        self._sub, self._name = sub, name
+
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        if name == self._name:
+            return self._sub.add_parser(name, **kwargs)
+        return CLIParser(prog=f"{PROG} {name}", add_help=False)
+
+    def __getattr__(self, attr: str) -> Any:
+        return getattr(self._sub, attr)
+
+
+def register_function(name: str):
+    """The register function of command ``name`` (imports its module)."""
+    module, _, func = COMMANDS[name][0].partition(":")
+    return getattr(importlib.import_module(module), func or "register")
+
+
+def build_parser(command: str | None = None, *, full: bool = False) -> CLIParser:
+    """The parser: ``command``'s own parser registered, every other command a stub.
+
+    Parameters
+    ----------
+    command
+        The command whose module is imported and whose parser is built in full; ``None``
+        builds stubs only (top-level ``--help``, ``--version``, an unknown command).
+    full
+        Register every command in full (imports every command module; for tests).
+    """
+    parser = CLIParser(
+        prog=PROG,
+        description="Validate physics engines (MuJoCo and others in the registry) on a model "
+        "of coupled inverted pendula against the reduced linear balancing model of Yoshida, "
+        "Higeta & Watanabe (2011).",
+    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {_version()}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name, (_target, help_text) in COMMANDS.items():
+        if full or name == command:
+            register_function(name)(_OnlyOne(sub, name))
+        else:
+            sub.add_parser(name, help=help_text, add_help=False)
+    return parser
+
+
+def command_of(argv: Sequence[str]) -> str | None:
+    """The command named in ``argv`` (its first word not starting with '-'), if known."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(command_of(argv))
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or a usage error already printed
+        return exc.code if isinstance(exc.code, int) else EXIT_USAGE
+    args.argv = argv  # a command that must run in a fresh process (render) re-runs these
+    from cipcore.params import ParameterError
+
+    try:
+        return int(args.func(args) or 0)
+    except ParameterError as exc:
+        print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return EXIT_SIGINT
+    except WriteError as exc:
+        print(f"{PROG}: error: {' '.join(exc.message().split())}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # a directory or lock file that could not be made
+        where = f"{exc.filename!r}: " if exc.filename else ""
+        print(f"{PROG}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,237 @@
+"""``cip-validate selftest``: inject every catalogued fault, show which check flags it.
+
+For each fault of :data:`validation.faults.catalogue.CATALOGUE` the suite's direct checks
+(:func:`validation.checks.agreement.instrument_checks`: the full model against its
+exact linear twin, the rod's stretch, the delay measured from the engine's
+response, the model's declared time step and integrator) run on the faulty
+engine with the same seed as the unmodified one.  The selftest passes when the
+unmodified model passes every check and every catalogued fault fails at least
+one.  ``--power`` also bisects each fault type's size down to the smallest that
+is still flagged (a power curve: below it the fault hides in the twin's floor).
+The file-level and shared-code paths (:mod:`validation.faults.selftest_paths`) add
+their rows and power curves.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+from cipcore.models import MODEL_NAMES
+from cipcore.params import ParameterError
+from validation.checks.agreement import instrument_checks, rigid_engine
+from validation.checks.stats import FAIL
+from validation.cli.args import nonnegative_int, positive_int
+from validation.cli.ci_options import add_ci_options, run_environment
+from validation.cli.engine_options import add_engine_options, check_engine_options
+from validation.faults.catalogue import CATALOGUE, FAULT_TYPES, Fault, make_fault
+
+
+def flagged_by(
+    fault: Fault | None,
+    seed: int,
+    n_realizations: int,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> list[str]:
+    """Names of the checks that fail with ``fault`` injected into ``engine`` (all of them run)."""
+    models = fault.models if fault is not None else MODEL_NAMES
+    try:
+        checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models,
+                                   engine=engine, integrator=integrator)  # fmt: skip
+    except ParameterError as exc:
+        if fault is None:
+            raise
+        # the engine refuses the faulty model (e.g. a bob inertia a point-mass engine
+        # cannot represent): the fault cannot pass unnoticed
+        return [f"engine refused the model: {exc}"]
+    return [c.name for c in checks if c.status == FAIL]
+
+
+def run_selftest(
+    seed: int = 1,
+    n_realizations: int = 2,
+    kinds: list[str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> tuple[list[str], list[dict]]:
+    """(checks failing on the unmodified model, one row per catalogued fault).
+
+    A fault that cannot exist in ``engine`` (a rod softness change in a rigid rod,
+    an integrator change in an engine with its own stepper) is listed as not
+    applicable with the reason, and is not counted.  The model-file and
+    shared-code faults (:mod:`validation.faults.selftest_paths`) follow the catalogue.
+    """
+    from validation.faults.selftest_paths import clean_failures, path_rows
+
+    eng = rigid_engine(engine)
+    clean = flagged_by(None, seed, n_realizations, engine, integrator) + clean_failures(
+        seed, n_realizations
+    )
+    rows = []
+    for kind, size in CATALOGUE:
+        if kinds and kind not in kinds:
+            continue
+        fault = make_fault(kind, size)
+        row = {"fault": kind, "size": size, "unit": fault.unit, "description": fault.description}
+        why = fault.not_applicable(eng)
+        if why is not None:
+            rows.append({**row, "flagged": None, "by": [], "not_applicable": why, "seconds": 0.0})
+            continue
+        t = time.perf_counter()
+        failed = flagged_by(fault, seed, n_realizations, engine, integrator)
+        rows.append({**row, "flagged": bool(failed), "by": failed,
+                     "seconds": round(time.perf_counter() - t, 2)})  # fmt: skip
+    rows += path_rows(seed, n_realizations, kinds)  # model files as a user's, shared code
+    return clean, rows
+
+
+def smallest_detectable(
+    kind: str,
+    seed: int,
+    n_realizations: int,
+    iterations: int = 12,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> dict:
+    """Bisection (geometric) on |size| between 1e-12 and the catalogue size.
+
+    Fixed faults (flags, sign flips) and one-step delays have no smaller size:
+    their row states that.  The sign of the catalogue size is kept.
+    """
+    spec = FAULT_TYPES[kind]
+    size = dict(CATALOGUE)[kind]
+
+    def flagged(fault: Fault, seed: int, n_realizations: int) -> list[str]:
+        return flagged_by(fault, seed, n_realizations, engine, integrator)
+
+    if spec.get("fixed") or spec.get("integer"):
+        return {"fault": kind, "smallest_flagged": size, "note": "no smaller size exists"}
+    identity = spec.get("identity", 0.0)  # the size that means "no fault"
+    sign = math.copysign(1.0, size - identity)
+    hi, lo = abs(size - identity), 1e-12
+    if not flagged(make_fault(kind, identity + sign * hi), seed, n_realizations):
+        return {"fault": kind, "smallest_flagged": None, "note": "catalogue size not flagged"}
+    if flagged(make_fault(kind, identity + sign * lo), seed, n_realizations):
+        unit = make_fault(kind, size).unit
+        return {"fault": kind, "smallest_flagged": identity + sign * lo, "deviation": lo,
+                "unit": unit, "note": "flagged down to the bisection's floor"}  # fmt: skip
+    for _ in range(iterations):
+        mid = math.sqrt(hi * lo)
+        if flagged(make_fault(kind, identity + sign * mid), seed, n_realizations):
+            hi = mid
+        else:
+            lo = mid
+    return {
+        "fault": kind,
+        "smallest_flagged": identity + sign * hi,
+        "largest_missed": identity + sign * lo,
+        "deviation": hi,
+        "missed_deviation": lo,
+        "unit": make_fault(kind, size).unit,
+    }
+
+
+def format_table(clean: list[str], rows: list[dict]) -> str:
+    out = ["unmodified model: " + ("pass" if not clean else "FAIL: " + ", ".join(clean)), ""]
+    out.append(f"{'fault':<24} {'size':>10} {'unit':<9} {'flagged':<8} by")
+    for r in rows:
+        by = ", ".join(r["by"]) if r["by"] else "-"
+        if r["flagged"] is None:
+            flag, by = "n/a", f"not applicable: {r['not_applicable']}"
+        else:
+            flag = "yes" if r["flagged"] else "NO"
+        out.append(f"{r['fault']:<24} {r['size']:>10.4g} {r['unit']:<9} "
+                   f"{flag:<8} {by}")  # fmt: skip
+    return "\n".join(out)
+
+
+def cmd_selftest(a: argparse.Namespace) -> int:
+    import json
+
+    from cipcore.params import ParameterError, check_count
+
+    check_count("realizations", a.realizations)
+    if a.junit:
+        from validation.cli.args import check_out_file
+
+        a.junit = check_out_file("--junit", a.junit, (".xml",))
+    check_engine_options(a)
+    kinds = [k.strip() for k in a.faults.split(",")] if a.faults else None
+    from validation.faults.selftest_paths import PATH_FAULT_TYPES, path_power
+
+    known = (*FAULT_TYPES, *PATH_FAULT_TYPES)
+    for k in kinds or []:
+        if k not in known:
+            raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(known)}")
+    t = time.perf_counter()
+    clean, rows = run_selftest(a.seed, a.realizations, kinds, a.engine, a.integrator)
+    rows_run = [r for r in rows if r["flagged"] is not None]
+    power = []
+    if a.power:
+        power = [smallest_detectable(r["fault"], a.seed, a.realizations, engine=a.engine,
+                                     integrator=a.integrator)
+                 for r in rows_run if "path" not in r]  # fmt: skip
+        power += path_power(rows, a.seed, a.realizations)
+    ok = not clean and all(r["flagged"] for r in rows_run)
+    if a.junit:
+        from validation.cli.junit import selftest_cases, write_junit
+
+        write_junit(selftest_cases(clean, rows), a.junit, time.perf_counter() - t)
+    if a.json:
+        from validation.checks.agreement import TWIN_METRIC_FLOOR
+        from validation.report.document import jsonable
+
+        eng = rigid_engine(a.engine)
+        tol = {**{f"twin_trajectory_relative_l2.{m}": eng.twin_tolerance_for(m)
+                  for m in MODEL_NAMES},
+               "twin_metric_floor": TWIN_METRIC_FLOOR,
+               "rod_stretch_relative_l2": eng.rod_tolerance}  # fmt: skip
+        doc = {"cipval_selftest": 1, "pass": ok, "engine": a.engine, "integrator": a.integrator,
+               "clean_failures": clean, "faults": rows, "power": power, "tolerances": tol,
+               **run_environment()}  # fmt: skip
+        print(json.dumps(jsonable(doc)))
+    else:
+        print(format_table(clean, rows))
+        if power:
+            print(
+                "\nsmallest flagged deviation from the unmodified model per fault type "
+                "(geometric bisection):"
+            )
+            for p in power:
+                if p.get("deviation") is None:
+                    print(f"  {p['fault']:<24} {p['smallest_flagged']!s:>10}  {p['note']}")
+                    continue
+                note = p.get("note") or f"(missed at deviation {p['missed_deviation']:.3g})"
+                print(f"  {p['fault']:<24} {p['smallest_flagged']:>10.4g}  deviation "
+                      f"{p['deviation']:.3g} {p['unit']} {note}")  # fmt: skip
+        print(f"\nselftest of {a.engine} {'passes' if ok else 'FAILS'}: "
+              f"{sum(bool(r['flagged']) for r in rows_run)} of {len(rows_run)} applicable "
+              f"faults flagged, {time.perf_counter() - t:.1f} s (seed {a.seed}, "
+              f"{a.realizations} realisations)")  # fmt: skip
+    return 0 if ok else 1
+
+
+def register_selftest(sub: argparse._SubParsersAction) -> None:
+    """Add ``cip-validate selftest`` to the CLI's subcommands."""
+    p = sub.add_parser(
+        "selftest",
+        help="inject each catalogued fault; show which check flags it",
+        description="Run the suite's regression checks on the unmodified model and on the "
+        "model with each catalogued fault injected (a wrong constant, delay, gain, noise "
+        "scaling or integrator); the selftest passes when the unmodified model passes every "
+        "check and every fault is flagged by at least one.",
+    )
+    p.add_argument("--seed", type=nonnegative_int, default=1,
+                   help="root seed of every noise draw (integer >= 0)")  # fmt: skip
+    p.add_argument("--realizations", type=positive_int, default=2,
+                   help="noise realisations per run (count >= 1)")  # fmt: skip
+    p.add_argument("--faults", metavar="A,B,...",
+                   help="only these fault types (default: all: "
+                   + ", ".join(FAULT_TYPES) + ")")  # fmt: skip
+    p.add_argument("--power", action="store_true", help="bisect each type's smallest flagged size")
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_engine_options(p)
+    add_ci_options(p, verbose=False)
+    p.set_defaults(func=cmd_selftest)
