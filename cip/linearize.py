@@ -22,13 +22,14 @@ to first order and checked by the tests:
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from cip.model import CIPParams, bob_rotational_inertia, build
-from cip.names import cart_joint, hinge_joint, motor
+from cip.names import cart_joint, hinge_joint, motor, tip_site
 from cipcore.models import get_model
 from cipcore.params import BalanceParams
 
@@ -100,6 +101,56 @@ def qacc_jacobians(m: mujoco.MjModel, eps: float = 1e-6) -> tuple[np.ndarray, np
         du[:, j] = (qacc(q0, v0, u0 + e) - qacc(q0, v0, u0 - e)) / (2 * eps)
     a = np.block([[np.zeros((nv, nv)), np.eye(nv)], [dq, dv]])
     b = np.vstack([np.zeros((nv, nu)), du])
+    return a, b
+
+
+def rod_jacobians(m: mujoco.MjModel, rod: str = "soft") -> tuple[np.ndarray, np.ndarray]:
+    """Continuous A, B of the model file in MuJoCo's (qpos - qpos0, qvel) and ctrl, upright.
+
+    ``rod`` is how the engine holds the rod between the tips (a single model has none):
+
+    * ``"soft"``: the file's tendon equality with its solref/solimp, as MuJoCo solves it
+      (its spring-damper is in ``qacc``: :func:`qacc_jacobians` of the file as it is);
+    * ``"rigid"``: an exact distance constraint g(q) = |p_tip1 - p_tip2| - l = 0.  With
+      the equality switched off, a0 = M^-1 Q is the unconstrained acceleration; the
+      constraint force J^T lambda with J q'' = 0 (the rod carries no force at upright
+      rest, so J's own variation is of second order) gives q'' = P a0,
+      P = I - M^-1 J^T (J M^-1 J^T)^-1 J, and A = [[0, I], [P Aq, P Av]], B = [[0], [P Bu]].
+
+    MuJoCo clamps the soft rod's time constant to at least 2 dt (``refsafe``); the
+    shipped file's 2 ms equals 2 dt at dt = 1 ms, so its rod is the same at every
+    refined step.
+    """
+    if rod == "soft" or m.neq == 0:
+        return qacc_jacobians(m)
+    if rod != "rigid":
+        raise ValueError(f"rod must be 'soft' or 'rigid', got {rod!r}")
+    free = copy.deepcopy(m)
+    free.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EQUALITY
+    a0, b0 = qacc_jacobians(free)
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    nv = m.nv
+    mass = np.zeros((nv, nv))
+    mujoco.mj_fullM(m, d, mass)
+    jac = []
+    for i in (1, 2):
+        j = np.zeros((3, nv))
+        mujoco.mj_jacSite(
+            m, d, j, None, mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, tip_site(i))
+        )
+        jac.append(j)
+    s1, s2 = (
+        d.site_xpos[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, tip_site(i))] for i in (1, 2)
+    )
+    u = (s1 - s2) / np.linalg.norm(s1 - s2)
+    jrow = (u @ (jac[0] - jac[1]))[None, :]
+    minv_jt = np.linalg.solve(mass, jrow.T)
+    proj = np.eye(nv) - minv_jt @ np.linalg.solve(jrow @ minv_jt, jrow)
+    a = a0.copy()
+    a[nv:] = proj @ a0[nv:]
+    b = b0.copy()
+    b[nv:] = proj @ b0[nv:]
     return a, b
 
 

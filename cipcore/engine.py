@@ -68,6 +68,14 @@ class Capabilities:
     kernels : what runs the steps: "native" (code compiled for the CPU: C, C++,
         numba or XLA) or "warp" (warp kernels, written for a CUDA device; without
         one they run only on warp's CPU device, by opt-in, and slowly).
+    order : the order of accuracy of ``integrator`` as the engine runs it (the
+        error at a fixed time falls as dt**order), where the engine declares it;
+        None: the order cipval knows for ``integrator``
+        (:data:`validation.checks.refinement.KNOWN_ORDERS`), else at least 0.8 is
+        asked of the observed order.
+    declared : False when the engine did not say how it steps (a version-1 chunk
+        engine): it is held to the model file's exact twin where it matches it, and
+        judged by time-step refinement where it does not.
     """
 
     precision: str
@@ -83,6 +91,8 @@ class Capabilities:
     twin: str | None = None
     solver: str | None = None
     kernels: str = "native"
+    order: float | None = None
+    declared: bool = True
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -29,6 +29,7 @@ PURPOSES: dict[str, int] = {
     "bootstrap": 1,
     "bot": 2,
     "selftest": 3,
+    "refinement": 4,
 }
 
 

@@ -20,6 +20,15 @@ standard library, numpy and mujoco.
 
 ``--delay-error`` applies each control one step late (the control of step k
 over step k + 1): a one-step delay fault that cipval must catch.
+
+Other discretisations, each a correct engine that cipval must pass: ``--substeps
+K`` takes K steps of dt/K per step (the control held over them), ``--integrator
+NAME`` steps with another of MuJoCo's integrators (``RK4``, ``implicitfast``,
+``implicit``) than the file's.  ``--declare`` answers the handshake in version 2,
+declaring what it runs (the integrator, ``other`` with its order when it
+sub-steps, and the soft rod); without it the engine declares nothing (version 1)
+and cipval finds out.  ``--cart-mass F`` multiplies both carts' masses by F: a
+wrong model constant that cipval must catch.
 """
 
 import argparse
@@ -34,6 +43,8 @@ import numpy as np
 from mujoco import rollout
 
 I64, F64 = np.dtype("<i8"), np.dtype("<f8")
+#: MuJoCo's integrators and their orders of accuracy (as MuJoCo runs them, dampers explicit)
+ORDERS = {"Euler": 1, "implicit": 1, "implicitfast": 1, "RK4": 4}
 
 
 def read_exact(stream, n: int) -> bytes:
@@ -57,6 +68,10 @@ def main() -> int:
     ap.add_argument("--delay-error", action="store_true", help="apply each control one step late")
     ap.add_argument("--one-session", action="store_true",
                     help="exit after one session instead of serving the next")  # fmt: skip
+    ap.add_argument("--substeps", type=int, default=1, help="steps of dt/K per step (K >= 1)")
+    ap.add_argument("--integrator", choices=sorted(ORDERS), help="MuJoCo integrator to step with")
+    ap.add_argument("--declare", action="store_true", help="declare the discretisation (v2)")
+    ap.add_argument("--cart-mass", type=float, default=1.0, help="factor on the carts' masses")
     args = ap.parse_args()
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     while True:
@@ -72,16 +87,31 @@ def session(header: dict, args: argparse.Namespace, stdin, stdout) -> int:
     """One session: the answer to ``header``, then chunks until n = 0 (0), or 1 when the
     header is refused."""
     if header.get("protocol") != "cipval-chunk" or header.get("version") != 1:
-        stdout.write(b'{"error": "this engine speaks cipval-chunk version 1 only"}\n')
+        stdout.write(b'{"error": "this engine speaks cipval-chunk version 1 (and 2) only"}\n')
         stdout.flush()
         return 1
     model = load_model(header)
+    k = max(1, args.substeps)
+    model.opt.timestep = header["timestep"] / k
+    if args.integrator:
+        model.opt.integrator = getattr(mujoco.mjtIntegrator, "mjINT_" + args.integrator.upper())
+    if args.cart_mass != 1.0:
+        for i in range(1, 3):
+            b = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"cart_{i}")
+            if b >= 0:
+                model.body_mass[b] *= args.cart_mass
+        mujoco.mj_setConst(model, mujoco.MjData(model))
     data = mujoco.MjData(model)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     R, S, U = header["n_realizations"], header["nstate"], header["nu"]
     assert mujoco.mj_stateSize(model, spec) == S and model.nu == U
     name = "chunk-example" + ("-delay-error" if args.delay_error else "")
     answer = {"protocol": "cipval-chunk", "version": 1, "engine": name}
+    if args.declare and 2 in header.get("versions", [1]):
+        integ = args.integrator or header["integrator"]
+        answer.update(version=2, rod="soft", integrator=integ if k == 1 else "other")
+        if k > 1:
+            answer["order"] = ORDERS[integ]
     if not args.one_session:
         answer["sessions"] = "many"
     stdout.write((json.dumps(answer) + "\n").encode())
@@ -101,7 +131,8 @@ def session(header: dict, args: argparse.Namespace, stdin, stdout) -> int:
             applied = ctrl
         # per realisation: set the start state, then for each step the control, mj_step
         # and the state after it
-        out, _ = rollout.rollout(model, data, state, np.ascontiguousarray(applied))
+        out, _ = rollout.rollout(model, data, state, np.ascontiguousarray(np.repeat(applied, k, 1)))
+        out = out[:, k - 1 :: k]
         warnings = sum(int(data.warning[w].number) for w in range(len(data.warning)))
         stdout.write(np.array([warnings], I64).tobytes() + out.astype(F64).tobytes())
         stdout.flush()

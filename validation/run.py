@@ -56,7 +56,7 @@ from tqdm.auto import tqdm
 from cipcore.atomic import WriteError, write_bytes
 from cipcore.params import BalanceParams, ParameterError
 from validation.checks import agreement
-from validation.checks.stats import FAIL, INCONCLUSIVE, PASS
+from validation.checks.stats import FAIL, INCONCLUSIVE, NOT_APPLICABLE, PASS
 from validation.cli.checklog import with_limit
 from validation.cli.ci_options import run_environment
 from validation.paper import claims as paper
@@ -781,6 +781,8 @@ def _results(
             figure_files = v
     divergence = _divergence(state)
     counts = {s: sum(ch.status == s for ch in checks) for s in (PASS, FAIL, INCONCLUSIVE)}
+    if any(ch.status == NOT_APPLICABLE for ch in checks):  # a tier's checks that do not judge
+        counts[NOT_APPLICABLE] = sum(ch.status == NOT_APPLICABLE for ch in checks)
     return {
         "cipval_results": 1,
         "profile": profile.name,

@@ -21,16 +21,39 @@ Wire format, version 1 (all numbers little-endian IEEE-754 float64 or int64):
         "mjb_base64": "..."}            # the same model as a MuJoCo binary (MJB)
 
    ``parameters`` are :class:`cip.engines.drake_plant.CIPGeometry`'s fields: cart and
-   bob masses (kg), pendulum lengths (m), bob inertias (kg m^2), the viscous
-   dampings at tip and cart (1/s, as forces per unit mass and velocity:
-   F = -gamma m v), gravity (m/s^2), the rod length between the tips (m;
-   null for the single model), the state indices of each joint.  A state
+   bob masses (kg), the carts' reference x (m), pendulum lengths L (m, hinge to
+   bob), the bobs' central principal inertias (kg m^2, about x, y, z; the hinge
+   axis is y), the viscous damping coefficients (N s/m: a force -c_tip v_x at
+   the tip along x, the tip's world x velocity, and -c_cart x' on the cart),
+   gravity (m/s^2, a vector), the motors' actuator indices and gears (cart force
+   = gear x control; the damping actuators take no control), the rod length
+   between the tips (m; null for the single model), the qpos / qvel indices of
+   each joint (a cart slides along world +x; a hinge turns about +y, theta > 0
+   tilting the tip to +x).  ``timestep`` at the top level is the step the engine
+   takes (``parameters.timestep`` is the same number).  A state
    vector (S values) is MuJoCo's ``mjSTATE_FULLPHYSICS``: time (s), then qpos
    (nq: cart x in m, pendulum angle in rad, per controller), qvel (nv), then
    the remaining physics state, which an engine without it passes through.
+   The header also carries ``"versions": [1, 2]`` (the versions cipval speaks),
+   ``"nq"`` and ``"nv"`` (the sizes of qpos and qvel),
+   ``"rod"`` (coupled model: ``length`` m, MuJoCo's ``solref`` [time constant s,
+   damping ratio] and ``solimp`` [dmin, dmax, width m, midpoint, power] of the
+   file's soft rod; null for the single model) and ``"units"`` (the unit of every
+   entry of ``parameters``): everything an engine built from scratch needs.
 2. The engine answers one JSON line: ``{"protocol": "cipval-chunk", "version":
    1, "engine": "NAME"}``, or ``{"error": "why"}`` and exits.  It may add
    ``"sessions": "many"``: it then serves another session after this one (below).
+   **Version 2** answers ``"version": 2`` and declares how it steps:
+   ``"integrator"``, one of MuJoCo's ``Euler``, ``implicit``, ``implicitfast``,
+   ``RK4`` (as MuJoCo defines them: cipval has their exact twins) or ``other``
+   (then ``"order"``, its order of accuracy, is required), and ``"rod"``:
+   ``soft`` (the file's solref/solimp spring-damper) or ``rigid`` (an exact
+   distance constraint).  A known integrator with the soft rod is held to its
+   exact twin (relative 1e-9); anything else is judged by time-step refinement
+   against the exact solution (:mod:`validation.checks.refinement`: cipval then
+   sends headers with ``timestep`` h/2, h/4, h/8 and each control repeated over
+   the sub-steps).  A version-1 engine declares nothing: it is held to the model
+   file's twin where it matches it, and judged by refinement where it does not.
 3. For every chunk cipval writes a **request frame**: int64 n (1 <= n <= d,
    the steps of this chunk), the R start states (R x S float64, row-major),
    the controls (R x n x U float64: control k is held over step k).  The
@@ -73,10 +96,24 @@ from cip.engines.rigid_body import RigidBodyEngine
 from cipcore.engine import Capabilities
 from cipcore.params import ParameterError
 
-__all__ = ["IDLE_PER_COMMAND", "PROTOCOL", "VERSION", "EngineProcessError", "ProcessRollout",
-           "close_idle_engines", "idle_engines", "process_engine"]  # fmt: skip
+__all__ = ["DECLARED_INTEGRATORS", "DECLARED_RODS", "IDLE_PER_COMMAND", "PROTOCOL", "UNITS",
+           "VERSION", "VERSIONS", "EngineProcessError", "ProcessRollout", "close_idle_engines",
+           "declaration", "declared_engine_terms", "idle_engines", "process_engine"]  # fmt: skip
 
 PROTOCOL, VERSION = "cipval-chunk", 1
+#: the versions cipval speaks: an engine answers with the highest it speaks
+VERSIONS = (1, 2)
+#: what a version-2 engine may declare (module docstring)
+DECLARED_INTEGRATORS = ("Euler", "implicit", "implicitfast", "RK4", "other")
+DECLARED_RODS = ("soft", "rigid")
+#: the unit of each entry of the header's ``parameters``
+UNITS = {
+    "n_controllers": "1", "timestep": "s", "gravity": "m/s^2", "cart_mass": "kg",
+    "cart_x0": "m", "bob_mass": "kg", "pendulum_length": "m", "bob_inertia": "kg m^2",
+    "tip_damping": "N s/m", "cart_damping": "N s/m", "motor_id": "actuator index",
+    "motor_gear": "N per unit control", "rod_length": "m", "qpos_x": "index into qpos",
+    "qpos_theta": "index into qpos", "dof_x": "index into qvel", "dof_theta": "index into qvel",
+}  # fmt: skip
 _I64, _F64 = np.dtype("<i8"), np.dtype("<f8")
 #: engines kept between sessions per command (those that answered ``"sessions": "many"``)
 IDLE_PER_COMMAND = 2
@@ -105,8 +142,14 @@ def header(model: mujoco.MjModel, n_realizations: int) -> dict[str, Any]:
     buf = np.zeros(size, dtype=np.uint8)
     mujoco.mj_saveModel(model, None, buf)
     params = asdict(geometry_from_mujoco(model))
+    rod = None
+    if model.neq:
+        rod = {"length": params["rod_length"], "solref": [float(x) for x in model.eq_solref[0]],
+               "solimp": [float(x) for x in model.eq_solimp[0]]}  # fmt: skip
     return {
-        "protocol": PROTOCOL, "version": VERSION, "n_realizations": n_realizations,
+        "protocol": PROTOCOL, "version": VERSION, "versions": list(VERSIONS),
+        "n_realizations": n_realizations, "rod": rod, "units": UNITS,
+        "nq": model.nq, "nv": model.nv,
         "nstate": mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS),
         "nu": model.nu, "timestep": float(model.opt.timestep),
         "integrator": _integrator(model),
@@ -220,11 +263,19 @@ class ProcessRollout:
             answer = json.loads(reply or b"null")
         except json.JSONDecodeError:
             answer = None
-        if not isinstance(answer, dict) or "error" in answer or answer.get("version") != VERSION:
+        if (
+            not isinstance(answer, dict)
+            or "error" in answer
+            or answer.get("version") not in VERSIONS
+        ):
             why = answer.get("error") if isinstance(answer, dict) else f"answered {reply[:80]!r}"
             raise self._broken(f"refused the session: {why}")
         self.engine_name = str(answer.get("engine", "?"))
         self._session["reusable"] = answer.get("sessions") == "many"
+        try:
+            self.declaration = declaration(answer)
+        except ValueError as exc:
+            raise self._broken(f"answered a version-2 handshake that is not valid: {exc}") from None
 
     def _broken(self, what: str) -> EngineProcessError:
         try:  # a child that died: give the OS a moment to report its status
@@ -261,12 +312,68 @@ class ProcessRollout:
         self._finalizer()
 
 
+def declaration(answer: dict[str, Any]) -> dict[str, Any] | None:
+    """What a version-2 handshake ``answer`` declares (integrator, order, rod), checked;
+    None for a version-1 answer.  Raises ValueError naming the field and its domain."""
+    if answer.get("version") != 2:
+        return None
+    integrator, rod, order = answer.get("integrator"), answer.get("rod"), answer.get("order")
+    if integrator not in DECLARED_INTEGRATORS:
+        raise ValueError(f"integrator must be one of {', '.join(DECLARED_INTEGRATORS)}, "
+                         f"got {integrator!r}")  # fmt: skip
+    if rod not in DECLARED_RODS:
+        raise ValueError(f"rod must be one of {', '.join(DECLARED_RODS)}, got {rod!r}")
+    if order is not None or integrator == "other":
+        ok = isinstance(order, int | float) and not isinstance(order, bool)
+        if not (ok and 0 < order <= 16):
+            raise ValueError(f"order must be a number in (0, 16], got {order!r}")
+        order = float(order)
+    return {"integrator": integrator, "order": order, "rod": rod}
+
+
+def _probe(backend: type[ProcessRollout]) -> dict[str, Any] | None:
+    """The engine's declaration, read from one handshake on the shipped coupled model (the
+    engine is kept for the next session when it serves many)."""
+    from cip.mjcf_params import load_model_file, shipped_model_path
+
+    rollout = backend(load_model_file(shipped_model_path("coupled")), 1, 1)
+    try:
+        return rollout.declaration
+    finally:
+        rollout.close()
+
+
+def declared_engine_terms(decl: dict[str, Any] | None) -> dict[str, Any]:
+    """The :class:`~cip.engines.rigid_body.RigidBodyEngine` settings and capabilities of a
+    process engine that declared ``decl`` (None: version 1, nothing declared)."""
+    if decl is None:
+        return {"integrators": ("Euler",), "caps": {
+            "integrator": "undeclared", "declared": False, "rod": "soft",
+            "twin": "the model file's terms, soft rod and integrator, where the engine "
+                    "matches it (it declared nothing)"}}  # fmt: skip
+    integrator, order, rod = decl["integrator"], decl["order"], decl["rod"]
+    caps = {"integrator": integrator, "order": order, "rod": rod, "declared": True, "twin": None}
+    if integrator != "other" and rod == "soft":
+        caps["twin"] = (f"the model file's terms, its soft rod and the declared {integrator} "
+                        "as MuJoCo defines it")  # fmt: skip
+        return {"integrators": (), "caps": caps}
+    # no exact twin: the envelope of the agreement margins steps the nearest one
+    nearest = "RK4" if (order or 1.0) >= 2 else "Euler"
+
+    def builder(mapping):
+        return {**mapping.twin_terms(), "integrator": nearest}
+
+    return {"integrators": (), "caps": caps, "twin_builder": builder}
+
+
 def process_engine(command: str, name: str = "command") -> RigidBodyEngine:
     """A registry engine that runs ``command`` (split like a POSIX shell) as its engine.
 
     Its capabilities are those the suite holds an external rigid-body engine to:
     float64 on the CPU, deterministic, MuJoCo's trajectory tolerance 1e-2 to the
-    reduced model; it offers no linearisation.  One process per realisation block;
+    reduced model; it offers no linearisation.  How it steps is what its handshake
+    declares (version 2; :func:`declared_engine_terms`), read from one session started
+    here.  One process per realisation block;
     the blocks run one at a time.
     """
     argv = shlex.split(command)
@@ -274,12 +381,20 @@ def process_engine(command: str, name: str = "command") -> RigidBodyEngine:
         raise ParameterError("--engine-cmd: empty command")
     backend = type("ProcessRollout_" + name.replace("-", "_"), (ProcessRollout,),
                    {"command": argv})  # fmt: skip
+    try:
+        decl = _probe(backend)
+    except EngineProcessError:  # it fails again in the first stage, which reports it (exit 4)
+        decl = None
+    terms = declared_engine_terms(decl)
     return RigidBodyEngine(
         name=name,
         capabilities=Capabilities(precision="float64", device="cpu", rigid_body=True,
                                   linearize=False, deterministic=True,
-                                  family="external process", trajectory_tolerance=1e-2),
+                                  family="external process", trajectory_tolerance=1e-2,
+                                  **terms["caps"]),
         backend=lambda: backend,
         max_threads=1,
         notes=f"external engine process: {command}",
+        integrators=terms["integrators"],
+        twin_builder=terms.get("twin_builder"),
     )  # fmt: skip

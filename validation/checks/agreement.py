@@ -21,10 +21,11 @@ from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
-from validation.checks import metrics
+from validation.checks import metrics, refinement
 from validation.checks.rod import rod_check
 from validation.checks.stats import (
     FAIL,
+    NOT_APPLICABLE,
     PASS,
     Check,
     ci_overlap,
@@ -420,6 +421,17 @@ def series_checks(
 
     checks, data = [], {}
     precision = rigid_engine(engine).capabilities.precision
+    # the direct checks first (their own seed): they decide each model's tier, which says
+    # whether the twin's metrics judge the engine (listed after the series checks)
+    direct = instrument_checks(
+        profile.seed_for("twin"), profile.series_realizations, threads, files=files,
+        engine=engine, integrator=integrator,
+    )  # fmt: skip
+    by_refinement = {
+        c.name.rsplit(".", 1)[1]
+        for c in direct
+        if c.name.startswith("twin.trajectory.") and c.status == NOT_APPLICABLE
+    }
     amplitude = profile.series_amplitude(precision)
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("series", model)
@@ -444,7 +456,10 @@ def series_checks(
             f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
             f"largest |theta| {max_angle:.2g} rad"
         )
-        checks += compare_series(model, mf, mr, "", details, mt, me)
+        series = compare_series(model, mf, mr, "", details, mt, me)
+        if model in by_refinement:  # the twin's metrics do not judge another discretisation
+            series = [not_applicable(c) if c.name.startswith("twin.") else c for c in series]
+        checks += series
         rel = trajectory_distance(full, red)
         checks.append(
             Check(
@@ -457,11 +472,7 @@ def series_checks(
             )
         )
         data[model] = {"full": full, "reduced": red, "metrics_full": mf, "metrics_reduced": mr}
-    checks += instrument_checks(
-        profile.seed_for("twin"), profile.series_realizations, threads, files=files,
-        engine=engine, integrator=integrator,
-    )  # fmt: skip
-    return checks, data
+    return checks + direct, data
 
 
 #: The departure the small-angle regime allows (cip.model.small_angle_limit: sin theta =
@@ -729,6 +740,12 @@ def model_file(model: str, files: dict[str, str] | None = None, integrator: str 
     return m
 
 
+def not_applicable(check: Check) -> Check:
+    """``check`` (an exact-twin check) of an engine judged by refinement: its numbers kept,
+    its status n/a (its details say why: the tier)."""
+    return replace(check, status=NOT_APPLICABLE)
+
+
 def _relative_l2(a: np.ndarray, b: np.ndarray) -> float:
     k = min(a.shape[1], b.shape[1])
     return metrics.relative_l2(a[:, :k], b[:, :k])
@@ -871,14 +888,19 @@ def instrument_checks(
         ef, et = full["balancing_error"], twin["balancing_error"]
         complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
         rel = _relative_l2(ef, et)
+        judged, why = refinement.tier(caps)
+        if not caps.declared:
+            judged, why = refinement.undeclared_tier(rel, eng.twin_tolerance_for(model))
         details = (
             f"engine {engine} ({twin_p.integrator}), amplitude {TWIN_AMPLITUDE:g} m, "
-            f"{n_realizations} x {TWIN_WINDOW:g} s, seed {seed}, same noise"
+            f"{n_realizations} x {TWIN_WINDOW:g} s, seed {seed}, same noise; "
+            f"tier: {judged} ({why})"
         )
+        ok = complete and rel <= eng.twin_tolerance_for(model)
         checks.append(
             Check(
                 name=f"twin.trajectory.{model}",
-                status=PASS if complete and rel <= eng.twin_tolerance_for(model) else FAIL,
+                status=(PASS if ok else FAIL) if judged == refinement.TWIN else NOT_APPLICABLE,
                 values={"relative_l2": rel, "complete": complete},
                 tolerance=f"relative L2 distance of the balancing errors to the engine's exact "
                 f"linear twin <= {eng.twin_tolerance_for(model):g} (the engine's twin_tolerance, "
@@ -890,9 +912,13 @@ def instrument_checks(
         if mp.n_controllers == 2:
             sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
             st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
-            checks.append(
-                rod_check(model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details)
+            rod = rod_check(
+                model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details
             )
+            checks.append(rod if judged == refinement.TWIN else not_applicable(rod))
+        checks.append(
+            refinement.refinement_check(model, m, eng, seed, backend=backend, threads=threads)
+        )
         expected = round(p.tau / m.opt.timestep)
         got = measured_delay(model, pe, phys, m, backend)
         checks.append(

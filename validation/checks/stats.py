@@ -35,6 +35,9 @@ import numpy as np
 from cipcore.stats import ci95_half_width
 
 PASS, FAIL, INCONCLUSIVE = "pass", "fail", "inconclusive"
+#: a check that does not judge this engine, with the reason in its details (an exact-twin
+#: check of an engine judged by time-step refinement); it counts as neither pass nor fail
+NOT_APPLICABLE = "n/a"
 
 
 @dataclass

@@ -182,6 +182,12 @@ def paper_section(results: dict) -> list[str]:
     return lines
 
 
+def _not_applicable(results: dict) -> str:
+    """', N n/a' where a tier left checks that do not judge the engine, else ''."""
+    n = results["counts"].get("n/a", 0)
+    return f", {n} n/a (not the engine's tier)" if n else ""
+
+
 def markdown(results: dict, regression: list[Check] | None = None) -> str:
     from validation.cli.checklog import check_value
 
@@ -190,7 +196,8 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
         "",
         f"Profile **{results['profile']}**, overall status **{results['status'].upper()}** "
         f"({results['counts']['pass']} pass, {results['counts']['fail']} fail, "
-        f"{results['counts']['inconclusive']} inconclusive), {results['elapsed_s']} s.",
+        f"{results['counts']['inconclusive']} inconclusive{_not_applicable(results)}), "
+        f"{results['elapsed_s']} s.",
         "",
         "Versions: " + ", ".join(f"{k} {v}" for k, v in results["versions"].items()),
         "",
@@ -386,8 +393,9 @@ def summary_table(results: dict, regression: list[Check] | None = None) -> str:
 
     out = [check_table(results["checks"])]
     c = results["counts"]
-    out.append(f"\n{c['pass']} pass, {c['fail']} fail, {c['inconclusive']} inconclusive "
-               f"({results['profile']} profile, {results['elapsed_s']} s)")  # fmt: skip
+    out.append(f"\n{c['pass']} pass, {c['fail']} fail, {c['inconclusive']} inconclusive"
+               f"{_not_applicable(results)} ({results['profile']} profile, "
+               f"{results['elapsed_s']} s)")  # fmt: skip
     return "\n".join(out)
 
 

@@ -1,0 +1,133 @@
+"""Exactness by time-step refinement (validation.checks.refinement, reduced.zoh)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.integrate
+
+from reduced.zoh import zoh_matrices, zoh_response
+from validation.checks import refinement
+from validation.checks.refinement import FLOOR, extrapolate, refine
+
+
+def test_zoh_matches_a_fine_ode_solution_under_held_input():
+    """The augmented exponential is the exact hold solution: an adaptive ODE solver at
+    tight tolerance over each interval agrees to its own tolerance."""
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((4, 4))
+    b = rng.standard_normal((4, 2))
+    h, u = 0.05, rng.standard_normal((1, 6, 2))
+    x0 = rng.standard_normal((1, 4))
+    ours = zoh_response(a, b, x0, u, h)[0]
+    x = x0[0]
+    for k in range(u.shape[1]):
+        sol = scipy.integrate.solve_ivp(lambda t, y, k=k: a @ y + b @ u[0, k], (0, h), x,
+                                        rtol=1e-12, atol=1e-14)  # fmt: skip
+        x = sol.y[:, -1]
+        np.testing.assert_allclose(ours[k], x, rtol=1e-9, atol=1e-12)
+
+
+def test_zoh_of_a_double_integrator_is_the_kinematics():
+    """x'' = u held over h: x gains v h + u h^2 / 2, v gains u h (exactly)."""
+    a = np.array([[0.0, 1.0], [0.0, 0.0]])
+    b = np.array([[0.0], [1.0]])
+    ad, bd = zoh_matrices(a, b, 0.1)
+    np.testing.assert_allclose(ad, [[1.0, 0.1], [0.0, 1.0]], atol=1e-15)
+    np.testing.assert_allclose(bd, [[0.005], [0.1]], atol=1e-15)
+    with pytest.raises(ValueError, match="hold interval h"):
+        zoh_matrices(a, b, 0.0)
+
+
+def test_extrapolation_removes_whole_order_error_terms():
+    """Levels y(h) = y0 + c1 h + c2 h^2: the observed order is 1 and the limit y0 is
+    recovered to roundoff; a second-order series is recovered as well."""
+    y0 = np.linspace(0.0, 1.0, 50)
+    c1, c2 = np.sin(y0), np.cos(y0)
+    for p in (1, 2):
+        levels = [y0 + c1 * (1e-3 / 2**k) ** p + c2 * (1e-3 / 2**k) ** (p + 1) for k in range(4)]
+        lim, order, order_coarse, change = extrapolate(levels)
+        assert abs(order - p) < 1e-2 and abs(order_coarse - p) < 1e-2
+        np.testing.assert_allclose(lim, y0, atol=1e-12)
+        assert change < 1e-12
+
+
+def _mujoco(integrator: str | None = None):
+    from cip.engines.rigid_body import MUJOCO
+    from validation.checks.agreement import model_file
+
+    return MUJOCO, model_file("coupled", None, integrator)
+
+
+@pytest.mark.parametrize(("integrator", "order"), [("Euler", 1.0), ("RK4", 4.0)])
+def test_correct_steppers_converge_to_the_exact_solution(integrator, order):
+    """MuJoCo's Euler and RK4 on the coupled file: the limit within a third of the floor,
+    the observed order the stepper's."""
+    eng, m = _mujoco(integrator)
+    r = refine(m, eng.rollout(), rod="soft", seed=1, n_realizations=2, chunk_time=0.1)
+    assert r.e0_interval[1] < FLOOR / 3, r
+    assert abs(r.order - order) < 0.3, r
+    assert r.passes(FLOOR, order - refinement.ORDER_SLACK)
+
+
+@pytest.mark.parametrize("kind", ["mass_ratio", "gravity", "cart_damping", "pendulum_length"])
+def test_a_1e4_fault_moves_the_limit_beyond_the_floor(kind):
+    """A relative 1e-4 error in the engine's model converges, at the stepper's own order, to
+    another limit: E0 beyond the floor by a factor of at least 5."""
+    from validation.faults.catalogue import make_fault
+
+    eng, m = _mujoco()
+    backend = make_fault(kind, 1e-4).backend(eng.rollout())
+    r = refine(m, backend, rod="soft", seed=1, n_realizations=2, chunk_time=0.1)
+    assert r.e0 > 5 * FLOOR, r
+    assert not r.passes(FLOOR, 0.7)
+
+
+def test_a_substepping_engine_is_judged_by_refinement_and_passes(tmp_path):
+    """An external engine that takes two MuJoCo steps per step (correct, finer) declares
+    nothing: its twin distance moves it to the refinement tier, where it passes; its
+    twin checks are n/a, not failures."""
+    import sys
+
+    from cip.engines.process import close_idle_engines, process_engine
+    from cipcore.registry import register_engine
+    from validation.checks.agreement import instrument_checks
+    from validation.checks.stats import NOT_APPLICABLE, PASS
+
+    cmd = f"{sys.executable} examples/chunk_engine.py --substeps 2"
+    try:
+        register_engine("substeps-2", process_engine(cmd, "substeps-2"))
+        checks = {c.name: c for c in instrument_checks(1, 1, engine="substeps-2",
+                                                       models=("single",))}  # fmt: skip
+    finally:
+        close_idle_engines()
+    assert checks["twin.trajectory.single"].status == NOT_APPLICABLE
+    assert "judged against the exact solution" in checks["twin.trajectory.single"].details
+    assert checks["refinement.single"].status == PASS
+    assert checks["delay.single"].status == PASS
+
+
+def test_version_2_declarations_are_checked():
+    from cip.engines.process import declaration, declared_engine_terms
+
+    assert declaration({"version": 1}) is None
+    d = declaration({"version": 2, "integrator": "other", "order": 2, "rod": "rigid"})
+    assert d == {"integrator": "other", "order": 2.0, "rod": "rigid"}
+    terms = declared_engine_terms(d)
+    assert terms["caps"]["twin"] is None and terms["caps"]["declared"]
+    known = declared_engine_terms(declaration({"version": 2, "integrator": "RK4", "rod": "soft"}))
+    assert known["caps"]["twin"] and known["integrators"] == ()
+    assert refinement.tier(_caps(**known["caps"]))[0] == refinement.TWIN
+    assert refinement.tier(_caps(**terms["caps"]))[0] == refinement.REFINEMENT
+    for bad, field in [({"integrator": "rk4", "rod": "soft"}, "integrator"),
+                       ({"integrator": "other", "rod": "soft"}, "order"),
+                       ({"integrator": "other", "order": -1, "rod": "soft"}, "order"),
+                       ({"integrator": "Euler", "rod": "stiff"}, "rod")]:  # fmt: skip
+        with pytest.raises(ValueError, match=field):
+            declaration({"version": 2, **bad})
+
+
+def _caps(**kw):
+    from cipcore.engine import Capabilities
+
+    return Capabilities(precision="float64", device="cpu", rigid_body=True, linearize=False, **kw)

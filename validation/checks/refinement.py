@@ -1,0 +1,410 @@
+"""Exactness by time-step refinement: any engine against the exact zero-order-hold solution.
+
+The exact twins (:mod:`reduced.twin`) hold an engine to 1e-9, but only when cipval
+re-implements the engine's discretisation.  An engine whose stepper cipval does not
+know (its own integrator, sub-steps, a rigid rod) is judged here instead, by what any
+correct stepper must satisfy: cipval computes every control and hands the engine
+forces held constant over each control interval h (the model file's time step), so as
+the engine's own step shrinks, dt = h, h/2, h/4, h/8, its trajectories must converge
+to the exact solution of the linearised rigid body under those piecewise-constant
+forces, x_{k+1} = exp(A h) x_k + int_0^h exp(A s) ds B u_k (:mod:`reduced.zoh`; no
+discretisation of cipval's enters).  A wrong mass, length, gravity or damping moves
+that limit; a different correct stepper does not.
+
+The test (open loop, no noise, no feedback):
+
+* excitation: per realisation a band-limited force, a sum of :data:`N_MODES`
+  sinusoids with random frequencies in [:data:`F_MIN`, :data:`F_MAX`] Hz and random
+  phases (stream ``refinement`` of the seed), held over each control interval; smooth
+  forces keep the rod's stiff constraint modes (eigenvalues near -500 1/s) unexcited,
+  so that the positions converge at the stepper's order (a new random force every
+  interval stalls every extrapolation near 3e-4);
+* observable: the positions, cart x (m) and the balancing error e = L theta (m) of
+  each balancer, at the control boundaries, starting upright at rest and scaled so the
+  largest |e| is :data:`AMPLITUDE` (the angles' second-order terms are then below
+  1e-12 relative);
+* reference: A and B from central differences of MuJoCo's ``qacc`` at upright
+  (:func:`cip.linearize.rod_jacobians`), with the rod as the engine declares it
+  (``soft``: the file's solref/solimp spring-damper; ``rigid``: an exact distance
+  constraint, the dynamics projected on J q'' = 0);
+* extrapolation: the observed order p = log2(|y_{h/2} - y_{h/4}| / |y_{h/4} - y_{h/8}|)
+  (norms over every realisation, time and coordinate), one Richardson step of order p
+  on the trajectories themselves, then one of order p + 1 (the next term of the
+  error's expansion in powers of dt): y_0 = the limit dt -> 0.  E0 is the relative
+  L2 distance of y_0 to the exact solution; its interval is E0 +- the change the last
+  extrapolation made (the extrapolation's own error estimate), widened by the spread
+  of E0 over realisations (Student-t 95 %).
+
+Verdict: pass when the interval's upper end is within the floor (:data:`FLOOR`, set
+from the correct engines' measured E0 with margin) and p is at least the declared order
+less :data:`ORDER_SLACK` (or :data:`UNDECLARED_ORDER` when the engine declares none).
+A one-step delay of the engine's control is itself a consistent first-order
+discretisation of the held force (it converges to the same limit), so this check does
+not see it: the ``delay`` check, which counts the steps between a step in the
+balancing error and the force, does, at the model file's step.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from cipcore.seeds import purpose_rng
+
+__all__ = [
+    "AMPLITUDE",
+    "FLOOR",
+    "F_MAX",
+    "F_MIN",
+    "LEVELS",
+    "N_MODES",
+    "ORDER_SLACK",
+    "UNDECLARED_ORDER",
+    "WINDOW",
+    "Refinement",
+    "extrapolate",
+    "open_loop_forces",
+    "refine",
+]
+
+#: refinement levels: the engine steps at h, h/2, ..., h / 2**(LEVELS - 1)
+LEVELS = 4
+#: the test window (s): 1000 control intervals at h = 1 ms
+WINDOW = 1.0
+#: sinusoids per force and their band (Hz): smooth at the control interval
+N_MODES, F_MIN, F_MAX = 4, 0.2, 5.0
+#: the largest balancing error of the response (m): linear to 1e-12 relative
+AMPLITUDE = 1e-5
+#: the largest E0 (relative L2) a correct engine may show (module docstring)
+FLOOR = 1e-6
+#: an observed order this close to a whole number is taken as that number
+WHOLE_ORDER = 0.15
+#: force sequences (realisations) per test, and the longest stretch handed to an engine
+#: at once (s: the delay tau, the chunk protocol's bound)
+REALIZATIONS, CHUNK_TIME = 4, 0.1
+#: how far the observed order may fall below the declared one
+ORDER_SLACK = 0.3
+#: the least observed order of an engine that declares none
+UNDECLARED_ORDER = 0.8
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """What one refinement test measured (module docstring).
+
+    ``errors``: relative L2 distance to the exact solution at each level's step
+    (``steps``, s); ``order`` the observed p (finest three levels) and
+    ``order_coarse`` the same from the coarsest three; ``e0`` the extrapolated
+    limit's distance and ``e0_interval`` its interval; ``per_realization`` E0 of each
+    force sequence.
+    """
+
+    steps: tuple[float, ...]
+    errors: tuple[float, ...]
+    order: float
+    order_coarse: float
+    e0: float
+    e0_interval: tuple[float, float]
+    per_realization: tuple[float, ...] = field(default_factory=tuple)
+
+    def passes(self, floor: float, least_order: float) -> bool:
+        ok = np.isfinite(self.e0_interval[1]) and self.e0_interval[1] <= floor
+        return bool(ok and np.isfinite(self.order) and self.order >= least_order)
+
+
+def open_loop_forces(
+    n_realizations: int, n_intervals: int, n_controllers: int, h: float, seed: int
+) -> np.ndarray:
+    """Band-limited forces (R, K, C), unit scale, each held over an interval of ``h`` s.
+
+    Realisation r's force is drawn from the seed's stream ``refinement``, key r
+    (:func:`cipcore.seeds.purpose_rng`): the same for any batch split.
+    Force k is the sum of the sinusoids at the interval's midpoint.
+    """
+    t = (np.arange(n_intervals) + 0.5) * h
+    out = np.empty((n_realizations, n_intervals, n_controllers))
+    for r in range(n_realizations):
+        rng = purpose_rng(seed, "refinement", r)
+        freq = rng.uniform(F_MIN, F_MAX, (N_MODES, n_controllers))
+        phase = rng.uniform(0.0, 2 * np.pi, (N_MODES, n_controllers))
+        weight = rng.standard_normal((N_MODES, n_controllers))
+        out[r] = np.einsum(
+            "mc,kmc->kc", weight, np.sin(2 * np.pi * freq * t[:, None, None] + phase)
+        )
+    return out
+
+
+def extrapolate(levels: list[np.ndarray]) -> tuple[np.ndarray, float, float, float]:
+    """The dt -> 0 limit of trajectories at steps h, h/2, ... (at least 3 levels).
+
+    Returns (y0, p, p_coarse, change): the limit, the observed order from the finest
+    three levels and from the coarsest three, and the norm of the last extrapolation
+    step's change (its error estimate, in the trajectories' unit).  One Richardson
+    step of order p, then (with four or more levels) one of order p + 1.
+    """
+    if len(levels) < 3:
+        raise ValueError("extrapolation needs at least three refinement levels")
+    diffs = [float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(levels)]
+
+    def order(d1: float, d2: float) -> float:
+        return float(np.log2(d1 / d2)) if d1 > 0 and d2 > 0 else float("inf")
+
+    p, p_coarse = order(diffs[-2], diffs[-1]), order(diffs[0], diffs[1])
+    if not np.isfinite(p):  # the levels agree exactly: the finest is the limit
+        return levels[-1], p, p_coarse, 0.0
+    # steppers have whole orders: the observed p carries the next terms' trace (1.002 for
+    # Euler at h = 1 ms), which one Richardson step would amplify to 3e-6 of the limit
+    k = round(p) if abs(p - round(p)) <= WHOLE_ORDER and round(p) >= 1 else p
+    r1 = [b + (b - a) / (2**k - 1) for a, b in itertools.pairwise(levels)]
+    if len(r1) < 3:
+        return r1[-1], p, p_coarse, float(np.linalg.norm(r1[-1] - r1[-2]))
+    q = k + 1
+    r2 = [b + (b - a) / (2**q - 1) for a, b in itertools.pairwise(r1)]
+    return r2[-1], p, p_coarse, float(np.linalg.norm(r2[-1] - r2[-2]))
+
+
+def _run_backend(backend, model: mujoco.MjModel, state0: np.ndarray, ctrl: np.ndarray, chunk: int,
+                 threads: int) -> np.ndarray:  # fmt: skip
+    """The states (R, n, nstate) after each of the n steps of ``ctrl`` (R, n, nu)."""
+    r, n, _ = ctrl.shape
+    nstate = state0.shape[1]
+    rollout = backend(model, r, threads)
+    out = np.empty((r, n, nstate))
+    state = np.array(state0)
+    try:
+        for k0 in range(0, n, chunk):
+            k1 = min(n, k0 + chunk)
+            buf = np.empty((r, k1 - k0, nstate))
+            rollout(state, np.ascontiguousarray(ctrl[:, k0:k1]), buf)
+            out[:, k0:k1] = buf
+            state = buf[:, -1]
+    finally:
+        close = getattr(rollout, "close", None)
+        if close is not None:
+            close()
+    return out
+
+
+def observable(model: mujoco.MjModel) -> tuple[list[int], np.ndarray]:
+    """The motors' actuator ids and the map from qpos - qpos0 to the observable: cart x and
+    e = L theta (m) of each balancer, L the hinge-to-tip distance at upright (the model's
+    element names, :mod:`cip.names`)."""
+    from cip.names import cart_joint, hinge_joint, motor, tip_site
+
+    obj = mujoco.mjtObj
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    motors, rows = [], []
+    i = 1
+    while mujoco.mj_name2id(model, obj.mjOBJ_JOINT, cart_joint(i)) >= 0:
+        jx = mujoco.mj_name2id(model, obj.mjOBJ_JOINT, cart_joint(i))
+        jt = mujoco.mj_name2id(model, obj.mjOBJ_JOINT, hinge_joint(i))
+        tip = data.site_xpos[mujoco.mj_name2id(model, obj.mjOBJ_SITE, tip_site(i))]
+        length = float(np.linalg.norm(tip - data.xanchor[jt]))
+        motors.append(mujoco.mj_name2id(model, obj.mjOBJ_ACTUATOR, motor(i)))
+        rx, rt = np.zeros(model.nq), np.zeros(model.nq)
+        rx[model.jnt_qposadr[jx]] = 1.0
+        rt[model.jnt_qposadr[jt]] = length
+        rows += [rx, rt]
+        i += 1
+    return motors, np.array(rows)
+
+
+def refine(
+    model: mujoco.MjModel,
+    backend,
+    *,
+    rod: str,
+    seed: int,
+    n_realizations: int,
+    chunk_time: float,
+    threads: int = 1,
+    levels: int = LEVELS,
+    window: float = WINDOW,
+) -> Refinement:
+    """Run ``backend`` (a :class:`cip.runner.RolloutBackend` class, faults included) on
+    ``model`` with its time step halved ``levels - 1`` times; compare with the exact
+    solution of the file's linearisation with the rod as ``rod`` declares it.
+
+    ``model`` is the compiled model file (its time step is the control interval h);
+    ``chunk_time`` (s) the longest stretch handed to the engine at once (the delay
+    tau: the chunk protocol's bound).
+    """
+    from cip.linearize import rod_jacobians
+    from reduced.zoh import zoh_response
+
+    h = float(model.opt.timestep)
+    k_int = round(window / h)
+    motors, obs = observable(model)
+    nc = len(motors)
+    nq, nv = model.nq, model.nv
+    a, b = rod_jacobians(model, rod)
+    # forces on the motors only (the damping actuators take no control)
+    f = open_loop_forces(n_realizations, k_int, nc, h, seed)
+    ctrl = np.zeros((n_realizations, k_int, model.nu))
+    for i in range(nc):
+        ctrl[..., motors[i]] = f[..., i]
+    x0 = np.zeros((n_realizations, nq + nv))
+    exact = zoh_response(a, b, x0, ctrl, h)[..., :nq] @ obs.T
+    scale = AMPLITUDE / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
+    exact *= scale
+    ctrl *= scale
+    data = mujoco.MjData(model)
+    mujoco.mj_resetData(model, data)
+    mujoco.mj_forward(model, data)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    s0 = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, s0, spec)
+    state0 = np.tile(s0, (n_realizations, 1))
+    qpos0 = model.qpos0
+    runs, steps = [], []
+    for lev in range(levels):
+        sub = 2**lev
+        mk = copy.deepcopy(model)
+        mk.opt.timestep = h / sub
+        steps.append(h / sub)
+        states = _run_backend(backend, mk, state0, np.repeat(ctrl, sub, axis=1),
+                              max(1, round(chunk_time / (h / sub))), threads)  # fmt: skip
+        q = states[:, sub - 1 :: sub, 1 : 1 + nq] - qpos0
+        runs.append(q @ obs.T)
+    norm = float(np.linalg.norm(exact))
+    errors = tuple(float(np.linalg.norm(y - exact)) / norm for y in runs)
+    y0, p, p_coarse, change = extrapolate(runs)
+    e0 = float(np.linalg.norm(y0 - exact)) / norm
+    per = np.array([np.linalg.norm(y0[r] - exact[r]) / np.linalg.norm(exact[r])
+                    for r in range(n_realizations)])  # fmt: skip
+    from validation.checks.stats import t_half_width
+
+    spread = t_half_width(per) if n_realizations > 1 else 0.0
+    width = change / norm + (spread if np.isfinite(spread) else 0.0)
+    return Refinement(
+        steps=tuple(steps), errors=errors, order=p, order_coarse=p_coarse, e0=e0,
+        e0_interval=(max(0.0, e0 - width), e0 + width),
+        per_realization=tuple(float(x) for x in per),
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------ the tier and the check
+#: the exact-twin tier and the refinement tier (module docstring)
+TWIN, REFINEMENT = "exact twin", "refinement"
+
+#: orders of the steppers cipval knows, as the engines run them (forces and dampers held
+#: over a step).  Measured with :func:`refine` (seed 1, 4 realisations, dt = 1 .. 1/8 ms):
+#: MuJoCo Euler and implicitfast, Drake's SAP and Bullet 1.00, Exudyn's Newmark with
+#: gamma = 1 1.00, MuJoCo's RK4 3.9-4.0 (its finest levels reach the reference's own
+#: floor, 1e-10 to 3e-10).
+KNOWN_ORDERS: dict[str, float] = {
+    "Euler": 1.0,
+    "implicit": 1.0,
+    "implicitfast": 1.0,
+    "RK4": 4.0,
+    "SAP": 1.0,
+    "Newmark(beta=1/2, gamma=1)": 1.0,
+}
+
+
+def declared_order(capabilities, integrator: str | None = None) -> float | None:
+    """The order the engine declares (``capabilities.order``), else the known order of
+    the stepper it runs (``integrator``: the model file's where the engine follows it,
+    else ``capabilities.integrator``), else None."""
+    if capabilities.order is not None:
+        return float(capabilities.order)
+    return KNOWN_ORDERS.get(integrator or capabilities.integrator)
+
+
+def least_order(capabilities, integrator: str | None = None) -> float:
+    """The least observed order that passes: the declared order less :data:`ORDER_SLACK`,
+    or :data:`UNDECLARED_ORDER`."""
+    p = declared_order(capabilities, integrator)
+    return UNDECLARED_ORDER if p is None else p - ORDER_SLACK
+
+
+def tier(capabilities) -> tuple[str, str]:
+    """(tier, why) from what the engine declares, before anything is measured.
+
+    An engine with an exact twin (``capabilities.twin``) is judged by it; one without
+    is judged by refinement; one that declared nothing (``declared`` False) is held to
+    the model file's twin, and moved to refinement by :func:`undeclared_tier` when its
+    distance to that twin shows it steps another way.
+    """
+    if capabilities.twin is None:
+        return REFINEMENT, (
+            f"no exact twin of its discretisation (stepper {capabilities.integrator}, rod "
+            f"{capabilities.rod}): judged against the exact solution by time-step refinement"
+        )
+    if not capabilities.declared:
+        return TWIN, "it declared no discretisation and matches the model file's exact twin"
+    return TWIN, f"its declared discretisation has an exact twin: {capabilities.twin}"
+
+
+def undeclared_tier(distance: float, tolerance: float) -> tuple[str, str]:
+    """The tier of an engine that declared no discretisation, from its twin distance."""
+    if distance <= tolerance:
+        return TWIN, (
+            f"it declared no discretisation and matches the model file's exact twin "
+            f"(distance {distance:.2g} <= {tolerance:g})"
+        )
+    return REFINEMENT, (
+        f"it declared no discretisation and does not step as the model file's integrator "
+        f"(twin distance {distance:.2g} > {tolerance:g}): judged against the exact solution "
+        "by time-step refinement"
+    )
+
+
+def refinement_check(
+    model: str, m: mujoco.MjModel, engine, seed: int, *, backend=None, threads: int | None = None
+):
+    """The ``refinement.<model>`` check of ``engine`` on the compiled model file ``m``.
+
+    ``backend``: the engine's :class:`cip.runner.RolloutBackend` class to run (a fault
+    wraps it; default the engine's own).  Forces from ``seed``'s ``refinement`` stream.
+    """
+    from validation.checks.stats import FAIL, PASS, Check
+
+    caps = engine.capabilities
+    integrator = m_integrator(m) if len(getattr(engine, "integrators", ())) > 1 else None
+    rod = "soft" if caps.rod == "soft" else "rigid"
+    r = refine(m, backend or engine.rollout(), rod=rod, seed=seed,
+               n_realizations=REALIZATIONS, chunk_time=CHUNK_TIME,
+               threads=max(1, min(threads or 1, REALIZATIONS)))  # fmt: skip
+    need = least_order(caps, integrator)
+    p_decl = declared_order(caps, integrator)
+    ok = r.passes(FLOOR, need)
+    return Check(
+        name=f"refinement.{model}",
+        status=PASS if ok else FAIL,
+        values={
+            "e0": r.e0,
+            "e0_interval": list(r.e0_interval),
+            "floor": FLOOR,
+            "order": r.order,
+            "order_coarse": r.order_coarse,
+            "least_order": need,
+            "declared_order": p_decl,
+            "steps_s": list(r.steps),
+            "errors": list(r.errors),
+        },
+        tolerance=(
+            f"E0, the relative L2 distance of the dt -> 0 limit (Richardson on the "
+            f"trajectories at dt = h .. h/{2 ** (len(r.steps) - 1)}) to the exact "
+            f"zero-order-hold solution, <= {FLOOR:g} (the correct engines' E0 with margin), "
+            f"and the observed order >= {need:g} "
+            + ("(declared order less 0.3)" if p_decl is not None else "(no order declared)")
+        ),
+        details=(
+            f"open loop, {REALIZATIONS} band-limited forces ({N_MODES} sinusoids in "
+            f"{F_MIN:g}-{F_MAX:g} Hz) held per {m.opt.timestep:g} s, {WINDOW:g} s, largest "
+            f"|e| {AMPLITUDE:g} m, rod {rod}, seed {seed}"
+        ),
+    )
+
+
+def m_integrator(m: mujoco.MjModel) -> str:
+    """The model file's integrator in MuJoCo's names (Euler, implicit, implicitfast, RK4)."""
+    from cip.mjcf_params import INTEGRATOR_NAMES
+
+    return INTEGRATOR_NAMES[mujoco.mjtIntegrator(m.opt.integrator).name]
