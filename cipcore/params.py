@@ -35,6 +35,13 @@ class ParameterError(ValueError):
     """
 
 
+class EngineError(RuntimeError):
+    """An engine broke: its process exited, hung past its timeout or broke its protocol.
+
+    The message is one line and names the engine; the command exits 4.
+    """
+
+
 def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
     """Return ``value`` as a float, or raise :class:`ParameterError`.
 

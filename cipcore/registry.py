@@ -28,6 +28,7 @@ ENGINES: dict[str, str] = {
     "bullet": "cip.engines.bullet:ENGINE",
     "exudyn": "cip.engines.exudyn:ENGINE",
     "simbody": "cip.engines.simbody:ENGINE",
+    "pinocchio": "cip.engines.pinocchio:ENGINE",
 }
 
 REFERENCE = "reduced"

@@ -79,11 +79,13 @@ def test_a_session_cut_mid_frame_is_not_kept_and_a_dead_kept_engine_is_replaced(
     r = backend(m, 1, 1)
     r(state, ctrl, out)  # a whole frame
 
-    def cut(n):
+    def cut(*args, **kwargs):
         raise KeyboardInterrupt
 
-    r.proc.stdout.read = cut  # interrupted between request and answer
-    with pytest.raises(KeyboardInterrupt):
+    import cip.engines.process as process
+
+    with pytest.MonkeyPatch.context() as mp, pytest.raises(KeyboardInterrupt):
+        mp.setattr(process, "_read", cut)  # interrupted between request and answer
         r(state, ctrl, out)
     proc = r.proc
     r.close()

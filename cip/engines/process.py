@@ -69,21 +69,38 @@ Wire format, version 1 (all numbers little-endian IEEE-754 float64 or int64):
    sessions, and a program's start-up (its runtime, its imports, a JIT) is paid
    once.  Its stdin closes when cipval ends, however it ends.
 
+No engine can hang a run.  The handshake must arrive within
+:data:`HANDSHAKE_TIMEOUT` s and each chunk's answer within :data:`CHUNK_TIMEOUT`
+s plus :data:`STEP_TIMEOUT` s per realisation-step of the chunk (R n), each
+write likewise (an engine that stops reading); ``--engine-timeout S`` sets the
+first two.  An engine past its time, one that exits, closes its output, sends
+a short or garbled answer or breaks the protocol raises
+:class:`EngineProcessError` naming the command, what was expected, the first
+bytes received and the last lines of the engine's stderr, and its whole
+process group (it runs in a session of its own) is killed; the CLI then exits
+4 naming the engine.  The same happens to every engine still running when
+cipval exits, however it exits (SIGINT and SIGTERM included).
+
 ``examples/chunk_engine.py`` is a reference implementation of the engine side
-(numpy and MuJoCo only).  Anything the child writes to stderr goes to
-cipval's stderr; a child that exits or answers short raises
-:class:`EngineProcessError` naming the command, and ``cip-validate run``
-then exits 4 with the partial results.
+(numpy and MuJoCo only).  Anything the child writes to stderr goes on to
+cipval's stderr (its last lines are kept for the error message); ``cip-validate
+run`` exits 4 with the partial results when the engine breaks.
 """
 
 from __future__ import annotations
 
 import atexit
 import base64
+import collections
 import json
+import os
+import select
 import shlex
+import signal
 import subprocess
+import sys
 import threading
+import time
 import weakref
 from dataclasses import asdict
 from typing import Any, ClassVar
@@ -94,7 +111,7 @@ import numpy as np
 from cip.engines.drake_plant import geometry_from_mujoco
 from cip.engines.rigid_body import RigidBodyEngine
 from cipcore.engine import Capabilities
-from cipcore.params import ParameterError
+from cipcore.params import EngineError, ParameterError
 
 __all__ = ["DECLARED_INTEGRATORS", "DECLARED_RODS", "IDLE_PER_COMMAND", "PROTOCOL", "UNITS",
            "VERSION", "VERSIONS", "EngineProcessError", "ProcessRollout", "close_idle_engines",
@@ -115,13 +132,22 @@ UNITS = {
     "qpos_theta": "index into qpos", "dof_x": "index into qvel", "dof_theta": "index into qvel",
 }  # fmt: skip
 _I64, _F64 = np.dtype("<i8"), np.dtype("<f8")
+#: seconds the engine has to answer the handshake (``--engine-timeout``)
+HANDSHAKE_TIMEOUT = 60.0
+#: seconds the engine has to answer a chunk, plus STEP_TIMEOUT per realisation-step of it
+#: (1 ms: 500 times MuJoCo's coupled step, 20 times a Python step loop's)
+CHUNK_TIMEOUT, STEP_TIMEOUT = 60.0, 1e-3
+#: seconds an engine has to exit once its input is closed
+EXIT_GRACE = 3.0
+#: the longest handshake line read (bytes) and how much of the engine's stderr is kept
+MAX_LINE, STDERR_TAIL = 1 << 16, 2048
 #: engines kept between sessions per command (those that answered ``"sessions": "many"``)
 IDLE_PER_COMMAND = 2
 _idle: dict[tuple[str, ...], list[subprocess.Popen]] = {}
 _idle_lock = threading.Lock()
 
 
-class EngineProcessError(RuntimeError):
+class EngineProcessError(EngineError):
     """The engine's process broke the protocol (exited, answered short or with an error)."""
 
 
@@ -158,14 +184,65 @@ def header(model: mujoco.MjModel, n_realizations: int) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def _kill(proc: subprocess.Popen) -> None:
+    """Kill the engine's whole process group (its own session) and reap it."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        proc.kill()
+    proc.wait()
+
+
 def _end(proc: subprocess.Popen) -> None:
-    """Close an engine's stdin and wait for it (killed after 10 s)."""
+    """Close an engine's stdin and wait for it (its group killed after
+    :data:`EXIT_GRACE` s, and at once for what it left running)."""
     try:
         proc.stdin.close()
-        proc.wait(timeout=10)
+        proc.wait(timeout=EXIT_GRACE)
     except (OSError, ValueError, subprocess.TimeoutExpired):
-        proc.kill()
-        proc.wait()
+        pass
+    _kill(proc)
+
+
+def _write(proc: subprocess.Popen, data: bytes, deadline: float) -> None:
+    """Write ``data`` to the engine's stdin by ``deadline`` (time.monotonic), else TimeoutError."""
+    fd, view = proc.stdin.fileno(), memoryview(data)
+    while view:
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([], [fd], [], left)[1]:
+            raise TimeoutError(f"it read {len(data) - len(view)} of the {len(data)} bytes sent")
+        view = view[os.write(fd, view[: 1 << 16]) :]
+
+
+def _read(proc: subprocess.Popen, want: int, deadline: float, line: bool = False) -> bytes:
+    """``want`` bytes from the engine's stdout (or up to a newline, at most ``want``) by
+    ``deadline``; fewer where it closed its output.  TimeoutError on the deadline, with
+    what arrived in its ``received`` attribute."""
+    fd, buf = proc.stdout.fileno(), bytearray()
+    while len(buf) < want and not (line and buf.endswith(b"\n")):
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            exc = TimeoutError(f"no answer: {len(buf)} of the {want} bytes expected")
+            exc.received = bytes(buf)
+            raise exc
+        chunk = os.read(fd, 1 if line else min(want - len(buf), 1 << 20))
+        if not chunk:
+            break
+        buf += chunk
+    return bytes(buf)
+
+
+def _drain_stderr(proc: subprocess.Popen, tail: collections.deque) -> None:
+    """Pass the engine's stderr on to ours, keeping its last :data:`STDERR_TAIL` bytes."""
+    out = getattr(sys.stderr, "buffer", None)
+    for chunk in iter(lambda: proc.stderr.read1(4096), b""):
+        tail.extend(chunk)
+        if out is not None:
+            try:
+                out.write(chunk)
+                out.flush()
+            except (OSError, ValueError):
+                out = None
 
 
 def _close(proc: subprocess.Popen, session: dict) -> None:
@@ -173,9 +250,8 @@ def _close(proc: subprocess.Popen, session: dict) -> None:
     many and the session ended between frames; else it ends."""
     try:
         if proc.poll() is None and not session["in_frame"]:
-            proc.stdin.write(np.zeros(1, _I64).tobytes())
-            proc.stdin.flush()
-    except (OSError, ValueError):
+            _write(proc, np.zeros(1, _I64).tobytes(), time.monotonic() + 10)
+    except (OSError, ValueError, TimeoutError):
         session["reusable"] = False
     if session["reusable"] and not session["in_frame"] and proc.poll() is None:
         with _idle_lock:
@@ -184,7 +260,7 @@ def _close(proc: subprocess.Popen, session: dict) -> None:
                 idle.append(proc)
                 return
     if session["in_frame"] and proc.poll() is None:
-        proc.kill()  # a frame was cut off (an interrupt): its answer is in no known state
+        _kill(proc)  # a frame was cut off (an interrupt): its answer is in no known state
     _end(proc)
 
 
@@ -223,6 +299,10 @@ class ProcessRollout:
     """
 
     command: ClassVar[list[str]] = []
+    #: seconds for the handshake, for a chunk, and per realisation-step of a chunk
+    handshake_timeout: ClassVar[float] = HANDSHAKE_TIMEOUT
+    chunk_timeout: ClassVar[float] = CHUNK_TIMEOUT
+    step_timeout: ClassVar[float] = STEP_TIMEOUT
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         self.n_realizations = n_realizations
@@ -238,14 +318,16 @@ class ProcessRollout:
                 return
             except EngineProcessError:
                 self._finalizer.detach()
-                kept.kill()
-                kept.wait()
+                _kill(kept)
         try:
-            proc = subprocess.Popen(self.command, stdin=subprocess.PIPE,
-                                    stdout=subprocess.PIPE)  # fmt: skip
+            proc = subprocess.Popen(self.command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, start_new_session=True)  # fmt: skip
         except OSError as exc:
             cmd = shlex.join(self.command)
             raise EngineProcessError(f"cannot start engine {cmd!r}: {exc}") from None
+        proc.stderr_tail = collections.deque(maxlen=STDERR_TAIL)
+        threading.Thread(target=_drain_stderr, args=(proc, proc.stderr_tail), daemon=True,
+                         name=f"engine-stderr-{proc.pid}").start()  # fmt: skip
         self._open(proc, key, line)
 
     def _open(self, proc: subprocess.Popen, key: tuple[str, ...], line: bytes) -> None:
@@ -253,23 +335,39 @@ class ProcessRollout:
         self.proc = proc
         self._session = {"key": key, "reusable": False, "in_frame": False}
         self._finalizer = weakref.finalize(self, _close, proc, self._session)
+        deadline = time.monotonic() + self.handshake_timeout
         try:
-            proc.stdin.write(line)
-            proc.stdin.flush()
-            reply = proc.stdout.readline()
-        except OSError as exc:
-            raise self._broken(f"handshake failed ({exc})") from None
+            _write(proc, line, deadline)
+            reply = _read(proc, MAX_LINE, deadline, line=True)
+        except TimeoutError as exc:
+            raise self._broken(f"did not answer the handshake within "
+                               f"{self.handshake_timeout:g} s ({exc})",
+                               getattr(exc, "received", b"")) from None  # fmt: skip
+        except OSError as exc:  # it stopped reading: what did it say before?
+            try:
+                said = _read(proc, MAX_LINE, time.monotonic() + 0.5, line=True)
+            except (OSError, TimeoutError):
+                said = b""
+            raise self._broken(f"protocol error: it closed its input during the handshake "
+                               f"({exc.strerror or exc})", said) from None  # fmt: skip
+        if not reply.endswith(b"\n"):
+            what = "closed its output" if len(reply) < MAX_LINE else "sent no newline"
+            raise self._broken(f"protocol error: expected one JSON handshake line, {what}",
+                               reply)  # fmt: skip
         try:
-            answer = json.loads(reply or b"null")
-        except json.JSONDecodeError:
-            answer = None
+            answer = json.loads(reply)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise self._broken('protocol error: expected a JSON line {"protocol": '
+                               '"cipval-chunk", "version": ...}', reply) from None  # fmt: skip
+        if isinstance(answer, dict) and "error" in answer:
+            raise self._broken(f"refused the session: {answer['error']}")
         if (
             not isinstance(answer, dict)
-            or "error" in answer
-            or answer.get("version") not in VERSIONS
+            or answer.get("protocol", PROTOCOL) != PROTOCOL
+            or (answer.get("version") not in VERSIONS)
         ):
-            why = answer.get("error") if isinstance(answer, dict) else f"answered {reply[:80]!r}"
-            raise self._broken(f"refused the session: {why}")
+            raise self._broken(f"protocol error: expected a {PROTOCOL} answer of version "
+                               f"{' or '.join(map(str, VERSIONS))}", reply)  # fmt: skip
         self.engine_name = str(answer.get("engine", "?"))
         self._session["reusable"] = answer.get("sessions") == "many"
         try:
@@ -277,28 +375,47 @@ class ProcessRollout:
         except ValueError as exc:
             raise self._broken(f"answered a version-2 handshake that is not valid: {exc}") from None
 
-    def _broken(self, what: str) -> EngineProcessError:
+    def _broken(self, what: str, received: bytes | None = None) -> EngineProcessError:
+        """The error naming the engine, what went wrong, the first bytes it sent and the
+        end of its stderr; the engine's process group is killed (its state is unknown)."""
         try:  # a child that died: give the OS a moment to report its status
-            code = self.proc.wait(timeout=2)
+            code = self.proc.wait(timeout=0.5)
         except subprocess.TimeoutExpired:
             code = None
-        tail = f" (exited with status {code})" if code is not None else ""
-        return EngineProcessError(f"engine {shlex.join(self.command)!r} {what}{tail}")
+        self._session["in_frame"] = True  # never kept for another session
+        _kill(self.proc)
+        msg = f"engine {shlex.join(self.command)!r} {what}"
+        if code is not None:
+            msg += f" (exited with status {code})"
+        if received:
+            msg += f"; received {len(received)} bytes, first {bytes(received[:64])!r}"
+        tail = bytes(getattr(self.proc, "stderr_tail", b"")).decode("utf-8", "replace")
+        tail = " | ".join(x.strip() for x in tail.strip().splitlines()[-3:] if x.strip())
+        if tail:
+            msg += f"; its stderr ended: {tail[-300:]}"
+        return EngineProcessError(msg)
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         n = ctrl.shape[1]
         frame = (np.array([n], _I64).tobytes() + np.ascontiguousarray(state, _F64).tobytes()
                  + np.ascontiguousarray(ctrl, _F64).tobytes())  # fmt: skip
         want = 8 + out.size * 8
+        limit = self.chunk_timeout + self.step_timeout * state.shape[0] * n
+        deadline = time.monotonic() + limit
         self._session["in_frame"] = True
         try:
-            self.proc.stdin.write(frame)
-            self.proc.stdin.flush()
-            data = self.proc.stdout.read(want)
+            _write(self.proc, frame, deadline)
+            data = _read(self.proc, want, deadline)
+        except TimeoutError as exc:
+            raise self._broken(f"did not answer a chunk of {n} steps x {state.shape[0]} "
+                               f"realisations within {limit:g} s ({exc})",
+                               getattr(exc, "received", b"")) from None  # fmt: skip
         except OSError as exc:
             raise self._broken(f"broke the pipe ({exc})") from None
-        if data is None or len(data) != want:
-            raise self._broken(f"answered {len(data or b'')} of {want} bytes")
+        if len(data) != want:
+            raise self._broken(f"protocol error: answered {len(data)} of the {want} bytes of "
+                               f"a response frame (int64 warnings, {out.size} float64)",
+                               data)  # fmt: skip
         self._session["in_frame"] = False
         self._warnings = int(np.frombuffer(data[:8], _I64)[0])
         out[...] = np.frombuffer(data[8:], _F64).reshape(out.shape)
@@ -366,26 +483,26 @@ def declared_engine_terms(decl: dict[str, Any] | None) -> dict[str, Any]:
     return {"integrators": (), "caps": caps, "twin_builder": builder}
 
 
-def process_engine(command: str, name: str = "command") -> RigidBodyEngine:
+def process_engine(
+    command: str, name: str = "command", timeout: float | None = None
+) -> RigidBodyEngine:
     """A registry engine that runs ``command`` (split like a POSIX shell) as its engine.
 
     Its capabilities are those the suite holds an external rigid-body engine to:
     float64 on the CPU, deterministic, MuJoCo's trajectory tolerance 1e-2 to the
     reduced model; it offers no linearisation.  How it steps is what its handshake
     declares (version 2; :func:`declared_engine_terms`), read from one session started
-    here.  One process per realisation block;
-    the blocks run one at a time.
+    here.  ``timeout`` (s) replaces :data:`HANDSHAKE_TIMEOUT` and :data:`CHUNK_TIMEOUT`.
+    One process per realisation block; the blocks run one at a time.
     """
     argv = shlex.split(command)
     if not argv:
         raise ParameterError("--engine-cmd: empty command")
-    backend = type("ProcessRollout_" + name.replace("-", "_"), (ProcessRollout,),
-                   {"command": argv})  # fmt: skip
-    try:
-        decl = _probe(backend)
-    except EngineProcessError:  # it fails again in the first stage, which reports it (exit 4)
-        decl = None
-    terms = declared_engine_terms(decl)
+    attrs: dict[str, Any] = {"command": argv}
+    if timeout is not None:  # --engine-timeout: the handshake's and each chunk's base
+        attrs.update(handshake_timeout=float(timeout), chunk_timeout=float(timeout))
+    backend = type("ProcessRollout_" + name.replace("-", "_"), (ProcessRollout,), attrs)
+    terms = declared_engine_terms(_probe(backend))  # an engine that breaks: EngineProcessError
     return RigidBodyEngine(
         name=name,
         capabilities=Capabilities(precision="float64", device="cpu", rigid_body=True,

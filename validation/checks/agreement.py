@@ -432,6 +432,14 @@ def series_checks(
         for c in direct
         if c.name.startswith("twin.trajectory.") and c.status == NOT_APPLICABLE
     }
+    # an engine judged by refinement is compared with the reduced model through the
+    # known stepper nearest its observed order (like with like: MuJoCo's RK4 for an order
+    # of 2 or more, else Euler), both for the twin under the same noise and the envelope
+    nearest = {
+        c.name.rsplit(".", 1)[1]: "RK4" if c.values["order"] >= 2 else "Euler"
+        for c in direct
+        if c.name.startswith("refinement.")
+    }
     amplitude = profile.series_amplitude(precision)
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("series", model)
@@ -441,11 +449,13 @@ def series_checks(
             integrator,
         )  # fmt: skip
         full, red = run_pair(*args)
-        twin = run_twin(*args)
-        env = run_envelope_twin(
-            *args[:8], fields=SERIES_FIELDS,
-            integrator=twin_integrator(model, files, engine, integrator),
-        )  # fmt: skip
+        if model in by_refinement:
+            twin = run_twin(*args[:9], "mujoco", nearest[model])
+            env_integrator = nearest[model]
+        else:
+            twin = run_twin(*args)
+            env_integrator = twin_integrator(model, files, engine, integrator)
+        env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS, integrator=env_integrator)
         mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
         mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
         mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)

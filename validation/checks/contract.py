@@ -34,7 +34,7 @@ import numpy as np
 from cip.model import CIPParams
 from cipcore.models import get_model
 from cipcore.noise import GainNoise
-from cipcore.params import BalanceParams
+from cipcore.params import BalanceParams, EngineError
 from cipcore.registry import REFERENCE, get_engine
 from validation.checks.metrics import relative_l2
 
@@ -196,14 +196,19 @@ def run_contract(engine: Any, on_check: Callable[[dict], None] | None = None) ->
     """Every check on ``engine``: rows {check, status (pass/fail/skipped/error), message,
     seconds}.  ``error`` is a crash of the engine (an exception other than a failure)."""
     rows = []
+    broke = None  # an engine that broke (hung, exited, broke its protocol) is not run again
     for name, fn in CHECKS.items():
         t = time.perf_counter()
         try:
+            if broke is not None:
+                raise ContractSkip(f"not run: the engine broke in {broke}")
             status, msg = "pass", fn(engine)
         except ContractFailure as exc:
             status, msg = "fail", str(exc)
         except ContractSkip as exc:
             status, msg = "skipped", str(exc)
+        except EngineError as exc:
+            status, msg, broke = "error", " ".join(str(exc).split()), name
         except Exception as exc:  # the engine crashed
             status, msg = "error", f"{type(exc).__name__}: {exc}"
         row = {"check": name, "status": status, "message": msg,

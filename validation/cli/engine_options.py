@@ -23,22 +23,34 @@ COMMAND_ENGINE = "command"
 
 
 def add_engine_cmd_arg(p: argparse.ArgumentParser) -> None:
-    """Add ``--engine-cmd "CMD ARGS"`` (the chunk exchange protocol, :mod:`cip.engines.process`)."""
+    """Add ``--engine-cmd "CMD ARGS"`` (the chunk exchange protocol, :mod:`cip.engines.process`)
+    and ``--engine-timeout SECONDS``."""
+    from validation.cli.args import positive_float
+
     p.add_argument(
         "--engine-cmd", metavar='"CMD ARGS"',
         help="an engine in another program, driven over stdin/stdout by the chunk exchange "
         f"protocol (README: Engines in other programs); registered as {COMMAND_ENGINE!r}",
     )  # fmt: skip
+    p.add_argument(
+        "--engine-timeout", metavar="SECONDS", type=positive_float, default=None,
+        help="--engine-cmd: seconds the engine has for its handshake and for each chunk, "
+        "plus 1 ms per realisation-step of the chunk (default 60); past it the engine is "
+        "killed and the command exits 4",
+    )  # fmt: skip
 
 
-def register_engine_cmd(command: str | None) -> str | None:
-    """Register ``--engine-cmd``'s engine; its registry name, or None without one."""
+def register_engine_cmd(command: str | None, timeout: float | None = None) -> str | None:
+    """Register ``--engine-cmd``'s engine (``timeout``: ``--engine-timeout``); its registry
+    name, or None without one."""
     if command is None:
+        if timeout is not None:
+            raise ParameterError("--engine-timeout applies to --engine-cmd only; give both")
         return None
     from cip.engines.process import process_engine
     from cipcore.registry import register_engine
 
-    register_engine(COMMAND_ENGINE, process_engine(command, COMMAND_ENGINE))
+    register_engine(COMMAND_ENGINE, process_engine(command, COMMAND_ENGINE, timeout))
     return COMMAND_ENGINE
 
 
@@ -69,12 +81,14 @@ def check_engine_options(a: argparse.Namespace) -> None:
     from validation.checks.agreement import rigid_engine
 
     command = getattr(a, "engine_cmd", None)
+    if command is None and getattr(a, "engine_timeout", None) is not None:
+        raise ParameterError("--engine-timeout applies to --engine-cmd only; give both")
     if command is not None:
         if a.engine is not None:
             raise ParameterError(
                 "--engine and --engine-cmd both name the engine to validate; give one"
             )
-        a.engine = register_engine_cmd(command)
+        a.engine = register_engine_cmd(command, getattr(a, "engine_timeout", None))
     elif a.engine is None:
         a.engine = "mujoco"
 

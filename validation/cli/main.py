@@ -41,6 +41,7 @@ from typing import Any
 
 from cipcore.atomic import WriteError
 from validation.cli.args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
+from validation.cli.exitcodes import EXIT_CRASH
 
 __all__ = ["COMMANDS", "EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
 
@@ -184,13 +185,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     args.argv = argv  # a command that must run in a fresh process (render) re-runs these
-    from cipcore.params import ParameterError
+    from cipcore.params import EngineError, ParameterError
 
     try:
         return int(args.func(args) or 0)
     except ParameterError as exc:
         print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_USAGE
+    except EngineError as exc:  # an engine that broke outside a stage (e.g. its handshake)
+        print(f"{PROG}: {' '.join(str(exc).split())}", file=sys.stderr)
+        return EXIT_CRASH
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_SIGINT

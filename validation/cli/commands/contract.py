@@ -8,9 +8,9 @@ import json
 import sys
 import time
 
-from cipcore.params import ParameterError
+from cipcore.params import EngineError, ParameterError
 from validation.cli.ci_options import add_ci_options
-from validation.cli.engine_options import add_engine_cmd_arg, register_engine_cmd
+from validation.cli.engine_options import COMMAND_ENGINE, add_engine_cmd_arg, register_engine_cmd
 from validation.cli.exitcodes import EXIT_CRASH, EXIT_FAIL, EXIT_OK
 
 #: the registry name of the ``--engine-cmd`` engine
@@ -24,15 +24,22 @@ def cmd_contract(a: argparse.Namespace) -> int:
     if (a.engine is None) == (a.engine_cmd is None):
         raise ParameterError('contract: give one of --engine NAME or --engine-cmd "CMD ARGS"')
     junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
-    name = register_engine_cmd(a.engine_cmd) or check_engine_name(a.engine)
-    engine = get_engine(name)  # unknown or unavailable: one line, exit 2
     t = time.perf_counter()
 
     def say(row: dict) -> None:
         if not (a.json or a.quiet):
             print(f"{row['check']:<28} {row['status']:<8} {row['message']}", flush=True)
 
-    rows = run_contract(engine, on_check=say)
+    try:
+        name = register_engine_cmd(a.engine_cmd, a.engine_timeout) or check_engine_name(a.engine)
+    except EngineError as exc:  # the engine broke in its first handshake: no check can run
+        name = COMMAND_ENGINE
+        rows = [{"check": "handshake", "status": "error", "message": " ".join(str(exc).split()),
+                 "seconds": round(time.perf_counter() - t, 2)}]  # fmt: skip
+        say(rows[0])
+    else:
+        engine = get_engine(name)  # unknown or unavailable: one line, exit 2
+        rows = run_contract(engine, on_check=say)
     if junit:
         from validation.cli.junit import write_junit
 
@@ -48,6 +55,10 @@ def cmd_contract(a: argparse.Namespace) -> int:
         print(json.dumps({"cipval_contract": 1, "engine": name, "checks": rows,
                           "pass": not (crashed or failed), **run_environment()}))  # fmt: skip
     else:
+        for r in rows:  # the engine's own error, in one line
+            if r["status"] == "error":
+                print(f"cip-validate: {r['message']}", file=sys.stderr)
+                break
         verdict = "crashed during" if crashed else "fails" if failed else "passes"
         print(f"engine {name} {verdict} the contract ({time.perf_counter() - t:.1f} s)",
               file=sys.stderr if a.quiet and verdict == "passes" else sys.stdout)  # fmt: skip

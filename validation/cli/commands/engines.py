@@ -21,7 +21,7 @@ def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError
     from validation.engines import compare_engines, parse_engines, write_engine_reports
 
-    cmd_engine = register_engine_cmd(a.engine_cmd)
+    cmd_engine = register_engine_cmd(a.engine_cmd, a.engine_timeout)
     if cmd_engine is not None:  # the reference, MuJoCo (the speed baseline) and the command
         names = [n for n in parse_engines(a.engines or "reduced,mujoco") if n != cmd_engine]
         names.append(cmd_engine)

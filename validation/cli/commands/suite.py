@@ -146,9 +146,15 @@ def cmd_run(a: argparse.Namespace) -> int:
             )
             return status
         except StageCrashed as exc:
-            print(f"cip-validate: stage {exc.stage!r} crashed ({exc.error}); kept "
-                  f"{len(exc.kept)} of {len(STAGES)} stages in {out / 'results.json'} "
-                  "(partial, naming the stage)", file=sys.stderr)  # fmt: skip
+            from cipcore.params import EngineError
+
+            if isinstance(exc.__cause__, EngineError):  # the engine broke, whatever the stage
+                what = " ".join(str(exc.__cause__).split())
+            else:
+                what = f"stage {exc.stage!r} crashed ({exc.error})"
+            print(f"cip-validate: {what}; kept {len(exc.kept)} of {len(STAGES)} stages in "
+                  f"{out / 'results.json'} (partial, naming the stage)",
+                  file=sys.stderr)  # fmt: skip
             if junit:
                 write_junit(run_cases(json.loads((out / "results.json").read_text())), junit)
             return EXIT_CRASH
