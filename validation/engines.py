@@ -33,7 +33,15 @@ from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import REFERENCE, availability, check_engine_name, engine_names, get_engine
 from validation.checks import agreement
 from validation.checks.metrics import relative_l2
-from validation.checks.stats import FAIL, INCONCLUSIVE, PASS, Check, ci_overlap, worst
+from validation.checks.stats import (
+    FAIL,
+    INCONCLUSIVE,
+    NOT_APPLICABLE,
+    PASS,
+    Check,
+    ci_overlap,
+    worst,
+)
 from validation.profiles import PAPER_BETA, PROFILES, TRAJECTORY_WINDOW, Profile
 
 #: The engine every throughput is divided by.
@@ -139,6 +147,16 @@ def validate_engine(
         }
         row["delay_steps"] = {
             m: _value(checks, f"delay.{m}", "measured_steps") for m in MODEL_NAMES
+        }
+        row["tier"] = {
+            m: "refinement"
+            if any(c.name == f"twin.trajectory.{m}" and c.status == NOT_APPLICABLE for c in checks)
+            else "exact twin"
+            for m in MODEL_NAMES
+        }
+        row["refinement"] = {
+            m: {k: _value(checks, f"refinement.{m}", k) for k in ("e0", "order", "floor")}
+            for m in MODEL_NAMES
         }
         row["rod_stretch"] = _value(checks, "twin.rod.coupled", "stretch_relative_l2")
         row["rod_stretch_over_error"] = _value(
@@ -246,6 +264,27 @@ def _rod_cell(row: dict) -> str:
     return "n/a"
 
 
+def _tier_cell(row: dict) -> str:
+    """Which tier judged the engine per model: T (exact twin) or R (refinement)."""
+    tier = row.get("tier")
+    if not tier:
+        return "n/a"
+    return "/".join("T" if tier[m] == "exact twin" else "R" for m in MODEL_NAMES)
+
+
+def _refinement_cell(row: dict) -> str:
+    ref = row.get("refinement") or {}
+    if not ref:
+        return "n/a"
+    floor = next((v["floor"] for v in ref.values() if v.get("floor") is not None), None)
+    return " / ".join(_g(ref[m].get("e0"), ".2g") for m in MODEL_NAMES) + f" ({_g(floor, 'g')})"
+
+
+def _order_cell(row: dict) -> str:
+    ref = row.get("refinement") or {}
+    return " / ".join(_g(ref[m].get("order"), ".2f") for m in MODEL_NAMES) if ref else "n/a"
+
+
 def _selftest_cell(st: dict | None) -> str:
     return "not run" if st is None else f"{st['flagged']} of {st['applicable']}"
 
@@ -259,17 +298,21 @@ def markdown(results: dict[str, Any]) -> str:
         "model's noise draws. Twin distance: relative L2 of the balancing error to the "
         "engine's own exact twin at 1e-6 m (tolerance from its measured floor); reduced "
         "distance: to the paper's reduced model at the profile's series amplitude; throughput: "
-        "coupled model, realisation-steps/s after a warm-up call.",
+        "coupled model, realisation-steps/s after a warm-up call. Tier: T, the engine is "
+        "judged by its exact twin; R, by time-step refinement against the exact "
+        "zero-order-hold solution (validation.checks.refinement: E0, the relative distance of "
+        "the dt -> 0 limit, within the floor; the observed order at least the declared one).",
         "",
-        "| engine | verdict | family | precision | integrator | rod | twin distance single "
+        "| engine | verdict | family | precision | integrator | rod | tier (single/coupled) "
+        "| refinement E0 single / coupled (floor) | observed order | twin distance single "
         "| twin distance coupled | twin tolerance | rod stretch (vs twin or /e) | delay (steps) "
         "| reduced distance coupled | faults flagged | failed checks | steps/s "
         "| ratio to MuJoCo CPU |",
-        "|" + "---|" * 16,
+        "|" + "---|" * 19,
     ]
     for r in results["engines"]:
         if r["status"] == "skipped":
-            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 13)
+            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 16)
                          + f" | skipped: {r['reason'].replace('|', '/')} |")  # fmt: skip
             continue
         c = r["capabilities"]
@@ -280,6 +323,7 @@ def markdown(results: dict[str, Any]) -> str:
         lines.append(
             f"| {r['engine']} | {r['status']} | {c['family']} | {c['precision']} | {integ} "
             f"| {c.get('rod', 'n/a') if c['rigid_body'] else 'n/a'} "
+            f"| {_tier_cell(r)} | {_refinement_cell(r)} | {_order_cell(r)} "
             f"| {_g(tw.get('single'))} | {_g(tw.get('coupled'))} "
             f"| {'/'.join(_g(v) for v in (r.get('twin_tolerance') or {}).values()) or 'n/a'} "
             f"| {_rod_cell(r)} "

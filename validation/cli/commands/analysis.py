@@ -103,7 +103,7 @@ def cmd_lyapunov(a: argparse.Namespace) -> int:
 
 # --------------------------------------------------------- critical gain
 def cmd_critical_gain(a: argparse.Namespace) -> int:
-    from reduced.lyapunov import critical_gain
+    from reduced.lyapunov import critical_gain, numerical_setting
 
     lo, hi = a.beta_range
     if not lo < hi:
@@ -124,13 +124,20 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
         threads=a.threads,
         progress=progress_enabled(),
     )
+    setting = numerical_setting(params, a.duration, a.realizations)
     if a.json:
-        print(dump(res.as_dict()))
+        print(dump(res.as_dict() | {"setting": setting}))
     else:
         print(
             f"beta* = {res.beta_star:.3f} +- {res.std:.3f} (95 % CI [{res.ci95[0]:.3f}, "
             f"{res.ci95[1]:.3f}]) for lambda1 = {res.target:g} 1/s ({a.model}, "
             f"{res.n_realizations} realisations x {res.duration:g} s)"
+        )
+        print(
+            f"setting: dt {setting['dt_s']:g} s, tau {setting['tau_s']:g} s "
+            f"({setting['delay_steps']} steps), {setting['stepper']} stepper, noise "
+            f"{setting['noise']}; transient {setting['transient_s']:g} s; estimator "
+            f"{setting['estimator']}"
         )
         for b, lam, ci in zip(res.betas, res.lambdas, res.ci95s, strict=True):
             print(f"  beta {b:8.3f}  lambda1 {lam:+.3e}  [{ci[0]:+.3e}, {ci[1]:+.3e}]")
