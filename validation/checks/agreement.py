@@ -926,9 +926,12 @@ def instrument_checks(
                 model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details
             )
             checks.append(rod if judged == refinement.TWIN else not_applicable(rod))
-        checks.append(
-            refinement.refinement_check(model, m, eng, seed, backend=backend, threads=threads)
-        )
+        if caps.precision == "float32" and judged == refinement.TWIN:
+            checks.append(refinement.not_run(model, refinement.FLOAT32_RULE))
+        else:
+            checks.append(
+                refinement.refinement_check(model, m, eng, seed, backend=backend, threads=threads)
+            )
         expected = round(p.tau / m.opt.timestep)
         got = measured_delay(model, pe, phys, m, backend)
         checks.append(
