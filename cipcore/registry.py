@@ -29,6 +29,7 @@ ENGINES: dict[str, str] = {
     "exudyn": "cip.engines.exudyn:ENGINE",
     "simbody": "cip.engines.simbody:ENGINE",
     "pinocchio": "cip.engines.pinocchio:ENGINE",
+    "dart": "cip.engines.dart:ENGINE",
 }
 
 REFERENCE = "reduced"

@@ -8,6 +8,8 @@
 * :mod:`~cip.engines.bullet`, :mod:`~cip.engines.exudyn`, :mod:`~cip.engines.simbody`;
 * :mod:`~cip.engines.pinocchio`: Pinocchio (ABA, semi-implicit Euler, a rigid rod; judged by
   time-step refinement);
+* :mod:`~cip.engines.dart`: DART (semi-implicit Euler, a rigid rod; judged by time-step
+  refinement);
 * :mod:`~cip.engines.process`: an engine in another program (the chunk protocol).
 
 A new engine is one module here, one entry in :data:`cipcore.registry.ENGINES` and
