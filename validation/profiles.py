@@ -46,6 +46,11 @@ class Profile:
     amplitude_float32: float = 1e-5
     series_duration: float = 100.0
     series_realizations: int = 8
+    # multifidelity agreement (validation.checks.multifidelity): the engine's series on
+    # this many realisations, its twin and the reduced model on mf_twin_realizations
+    # (same noise, nested); 0: off, every model on series_realizations
+    mf_engine_realizations: int = 0
+    mf_twin_realizations: int = 16
     decimate: int = 5  # record every 5 ms
     spectrum_segment: float = 10.0  # s
     spectrum_band: tuple = (0.1, 20.0)  # Hz

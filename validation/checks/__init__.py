@@ -10,5 +10,7 @@
 * :mod:`~validation.checks.divergence`: runs that leave the small-angle regime or blow up;
 * :mod:`~validation.checks.metrics`: balancing error, RMS, spectra, STCC (one function per
   estimator);
-* :mod:`~validation.checks.stats`: intervals, tolerances and verdict rules.
+* :mod:`~validation.checks.stats`: intervals, tolerances and verdict rules;
+* :mod:`~validation.checks.multifidelity`: the engine's agreement estimated with its exact
+  twin as control variate (two-model MFMC: estimate, interval, allocation).
 """

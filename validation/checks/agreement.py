@@ -10,6 +10,7 @@ with one seed, computes a metric per realisation and returns
 from __future__ import annotations
 
 import warnings
+import zlib
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -25,6 +26,7 @@ from validation.checks import metrics, refinement
 from validation.checks.rod import rod_check
 from validation.checks.stats import (
     FAIL,
+    INCONCLUSIVE,
     NOT_APPLICABLE,
     PASS,
     Check,
@@ -32,6 +34,7 @@ from validation.checks.stats import (
     paired_equivalence,
     paired_shift,
     se_agreement,
+    t_half_width,
     worst,
 )
 from validation.profiles import PAPER_BETA, TRAJECTORY_WINDOW, Profile
@@ -166,17 +169,49 @@ def run_pair(
     the shipped ``models/cip_<model>.xml``, stepped with ``integrator`` where
     given), its physical parameters read from it, run by ``engine``.
     """
+    full = run_full(model, beta, amplitude, duration, n, seed, decimate, threads, files, engine,
+                    integrator)  # fmt: skip
+    return full, run_reduced(model, beta, amplitude, duration, n, seed, decimate, threads)
+
+
+def run_full(
+    model: str,
+    beta: float,
+    amplitude: float,
+    duration: float,
+    n: int,
+    seed: int,
+    decimate: int,
+    threads: int | None,
+    files: dict[str, str] | None = None,
+    engine: str = "mujoco",
+    integrator: str | None = None,
+) -> Trajectory:
+    """The engine's half of :func:`run_pair` (the model file run by ``engine``)."""
     from cip.mjcf_params import read_mapping
 
     p = BalanceParams(beta=beta)
     kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
     m = model_file(model, files, integrator)
-    full = rigid_engine(engine).simulate(
+    return rigid_engine(engine).simulate(
         model, p, duration, n, seed, fields=(*SERIES_FIELDS, "angle"),
         physical=read_mapping(m).physical(), mj_model=m, **kw,
     )  # fmt: skip
-    red = simulate(model, p, duration, n, seed, fields=SERIES_FIELDS, **kw)
-    return full, red
+
+
+def run_reduced(
+    model: str,
+    beta: float,
+    amplitude: float,
+    duration: float,
+    n: int,
+    seed: int,
+    decimate: int,
+    threads: int | None,
+) -> Trajectory:
+    """The reduced model's half of :func:`run_pair` (the same noise streams)."""
+    kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
+    return simulate(model, BalanceParams(beta=beta), duration, n, seed, fields=SERIES_FIELDS, **kw)
 
 
 #: Floor of the full-vs-twin metric differences (log10 units, seconds or fractions):
@@ -417,8 +452,6 @@ def series_checks(
     the exact twin (every metric), then :func:`instrument_checks` (twin trajectory
     at 1e-6 m, rod, measured delay, declared model).
     """
-    from validation.checks.conformance import run_envelope_twin
-
     checks, data = [], {}
     precision = rigid_engine(engine).capabilities.precision
     # the direct checks first (their own seed): they decide each model's tier, which says
@@ -448,41 +481,341 @@ def series_checks(
             profile.series_realizations, seed, profile.decimate, threads, files, engine,
             integrator,
         )  # fmt: skip
-        full, red = run_pair(*args)
-        if model in by_refinement:
-            twin = run_twin(*args[:9], "mujoco", nearest[model])
-            env_integrator = nearest[model]
-        else:
-            twin = run_twin(*args)
-            env_integrator = twin_integrator(model, files, engine, integrator)
-        env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS, integrator=env_integrator)
-        mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
-        mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
-        mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
-        me = series_metrics(env, profile, 0.1, profile.spectrum_segment)
-        max_angle = float(np.max(full.attrs["max_abs_angle"]))
-        details = (
-            f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
-            f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
-            f"largest |theta| {max_angle:.2g} rad"
-        )
-        series = compare_series(model, mf, mr, "", details, mt, me)
-        if model in by_refinement:  # the twin's metrics do not judge another discretisation
-            series = [not_applicable(c) if c.name.startswith("twin.") else c for c in series]
-        checks += series
-        rel = trajectory_distance(full, red)
-        checks.append(
-            Check(
-                name=f"agreement.trajectory.{model}",
-                status=PASS if rel < 0.01 and max_angle < small_angle_limit() else FAIL,
-                values={"relative_l2": rel, "max_abs_angle": max_angle},
-                tolerance="relative L2 distance of the balancing errors < 1% over the first 10 s, "
-                "in the small-angle regime",
-                details=details,
-            )
-        )
-        data[model] = {"full": full, "reduced": red, "metrics_full": mf, "metrics_reduced": mr}
+        got = series_model_checks(args, profile, nearest.get(model) if model in by_refinement
+                                  else None, precision)  # fmt: skip
+        checks += got[0]
+        data[model] = got[1]
     return checks + direct, data
+
+
+def series_model_checks(
+    args: tuple, profile: Profile, nearest: str | None, precision: str
+) -> tuple[list[Check], dict]:
+    """One model's time-series checks (:func:`series_checks`): full vs reduced and full vs
+    its twin, by the multifidelity estimator where the profile switches it on and it pays
+    (:func:`multifidelity_series`), else plainly.
+
+    ``args``: :func:`run_pair`'s; ``nearest``: the MuJoCo integrator of the nearest twin
+    for an engine judged by refinement (None: the engine's own exact twin).  Returns
+    (checks, the stage's data for the model).
+    """
+    from validation.checks.conformance import run_envelope_twin
+
+    model, beta, amplitude = args[:3]
+    seed, files, engine, integrator = args[5], *args[8:]
+    fallback = ""
+    if profile.mf_engine_realizations:  # a str: the twin does not pay, plain sampling
+        got = multifidelity_series(args, profile, nearest, precision)
+        if not isinstance(got, str):
+            return got
+        fallback = f"; {got}"
+    full, red = run_pair(*args)
+    if nearest:
+        twin = run_twin(*args[:9], "mujoco", nearest)
+        env_integrator = nearest
+    else:
+        twin = run_twin(*args)
+        env_integrator = twin_integrator(model, files, engine, integrator)
+    env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS, integrator=env_integrator)
+    mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
+    mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
+    mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
+    me = series_metrics(env, profile, 0.1, profile.spectrum_segment)
+    max_angle = float(np.max(full.attrs["max_abs_angle"]))
+    details = (
+        f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
+        f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
+        f"largest |theta| {max_angle:.2g} rad{fallback}"
+    )
+    series = compare_series(model, mf, mr, "", details, mt, me)
+    if nearest:  # the twin's metrics do not judge another discretisation
+        series = [not_applicable(c) if c.name.startswith("twin.") else c for c in series]
+    data = {"full": full, "reduced": red, "metrics_full": mf, "metrics_reduced": mr}
+    return [*series, trajectory_check(model, full, red, details)], data
+
+
+def trajectory_check(model: str, full: Trajectory, red: Trajectory, details: str) -> Check:
+    """``agreement.trajectory.<model>``: the balancing errors within 1 % (relative L2) over
+    the first :data:`TRAJECTORY_WINDOW` s, every angle inside the small-angle regime."""
+    rel = trajectory_distance(full, red)
+    max_angle = float(np.max(full.attrs["max_abs_angle"]))
+    return Check(
+        name=f"agreement.trajectory.{model}",
+        status=PASS if rel < 0.01 and max_angle < small_angle_limit() else FAIL,
+        values={"relative_l2": rel, "max_abs_angle": max_angle},
+        tolerance="relative L2 distance of the balancing errors < 1% over the first 10 s, "
+        "in the small-angle regime",
+        details=details,
+    )
+
+
+# ------------------------------------------------------------ multifidelity agreement
+#: The multifidelity agreement rule (Profile.mf_engine_realizations > 0).
+MF_RULE = (
+    "multifidelity paired TOST (validation.checks.multifidelity, two-model MFMC): the full - "
+    "reduced difference estimated as [full - alpha twin] over the engine's n realisations + "
+    "alpha [twin - reduced] over the twin's m (same noise, nested; alpha the optimal "
+    "control-variate coefficient from the n pairs); its 95% t-interval (MFMC variance, "
+    "Welch-Satterthwaite df) within +- margin, margin = min(|twin - reduced|, |envelope twin - "
+    "reduced|) over the m (paired mean + 95% half-width) + the multifidelity half-width"
+)
+MF_SLOPE_RULE = (
+    "the engine's realisation-mean log spectrum by the twin as control variate (per bin, n "
+    "engine and m twin realisations), two power laws fitted to it; standard error by the "
+    "paired bootstrap (n pairs and the m - n further twins resampled apart); against the "
+    "reduced model's over m: pass within 2 sigma, fail beyond 3 sigma"
+)
+
+
+def head(tr: Trajectory, n: int) -> Trajectory:
+    """The first ``n`` realisations of ``tr``: the same noise streams as an n-realisation run."""
+    return Trajectory(time=tr.time, data={k: v[:n] for k, v in tr.data.items()},
+                      attrs=dict(tr.attrs))  # fmt: skip
+
+
+def _known(x: np.ndarray) -> float:
+    """|mean| + 95 % half-width of the finite values (the known terms of a margin)."""
+    x = x[np.isfinite(x)]
+    return abs(float(x.mean())) + t_half_width(x) if x.size > 1 else float("inf")
+
+
+def _mf_rng(profile: Profile, model: str, metric: str) -> np.random.Generator:
+    """The bootstrap stream of one multifidelity check (:mod:`cipcore.seeds`)."""
+    from cipcore.seeds import purpose_rng
+
+    key = zlib.crc32(f"multifidelity/{model}/{metric}".encode())
+    return purpose_rng(profile.seed, "bootstrap", key)
+
+
+def mf_equivalence(
+    full: np.ndarray,
+    red: np.ndarray,
+    twin: np.ndarray,
+    env: np.ndarray,
+    n_plain: int,
+    rng: np.random.Generator,
+) -> tuple[str, dict, float]:
+    """Multifidelity paired TOST (:data:`MF_RULE`) of one per-realisation metric.
+
+    ``full``: (n,) the engine's values; ``red``, ``twin``, ``env``: (m,) the reduced
+    model's, the twin's and the envelope twin's, the first n under the engine's noise.
+    Returns (status, values, the half-width over the one plain sampling of ``n_plain``
+    engine realisations would have at the same sigma_y,
+    :meth:`validation.checks.multifidelity.MFEstimate.plain_half_width`; 0 where both vanish).
+    """
+    from validation.checks import multifidelity as mfe
+
+    a = np.asarray(full, dtype=float).ravel()
+    r = np.asarray(red, dtype=float).ravel()
+    y, x = mfe.finite_nested(a - r[: a.size], np.asarray(twin, dtype=float).ravel() - r)
+    if y.size < mfe.MIN_PAIRED:
+        return INCONCLUSIVE, {"n": int(y.size), "reason": "too few finite pairs"}, float("inf")
+    est = mfe.mfmc_estimate(y, x)
+    margin = min(_known(x), _known(np.asarray(env, dtype=float).ravel() - r)) + est.half_width
+    lo, hi = est.ci95
+    if lo >= -margin and hi <= margin:
+        status = PASS
+    elif lo > margin or hi < -margin:
+        status = FAIL
+    else:
+        status = INCONCLUSIVE
+    plain = est.plain_half_width(n_plain)  # at the same sigma_y, from every sample
+    ratio = est.half_width / plain if plain > 0 else (0.0 if est.half_width == 0 else np.inf)
+    rf = r[np.isfinite(r)]
+    ref, ref_se = float(rf.mean()), float(rf.std(ddof=1) / np.sqrt(rf.size))
+    boot = mfe.bootstrap_interval(y, x, rng, 500)
+    return (
+        status,
+        {
+            "n": est.n,
+            "n_twin": est.m,
+            "full": {"value": ref + est.mean, "se": float(np.hypot(est.se, ref_se))},
+            "reduced": {"value": ref, "se": ref_se},
+            "difference": {"value": est.mean, "se": est.se},
+            "difference_mean": est.mean,
+            "difference_ci95": [lo, hi],
+            "margin": float(margin),
+            "margin_rule": "known terms' difference over the twin's realisations + the "
+            "multifidelity half-width",
+            "multifidelity": {
+                "rho": est.rho,
+                "alpha": est.alpha,
+                "df": est.df,
+                "variance_ratio": est.variance_ratio,
+                "bootstrap_ci95": list(boot),
+                "half_width_vs_plain": ratio,
+            },
+        },
+        ratio,
+    )
+
+
+def _log_spectra(m: SeriesMetrics, profile: Profile) -> tuple[np.ndarray, np.ndarray]:
+    """(log10 bin frequencies, (R, 16) per-realisation binned log10 PSD) as the slope fit
+    of :func:`series_metrics` bins them (:func:`validation.checks.metrics.fit_two_power_laws`)."""
+    f, s = m.spectrum
+    lo = max(profile.spectrum_band[0], 2.0 / profile.spectrum_segment)
+    hi = profile.spectrum_band[1]
+    keep = (f >= lo) & (f <= hi)
+    return metrics._log_bins(f[keep], np.atleast_2d(s)[:, keep], lo, hi, 16)
+
+
+def mf_slopes(full: SeriesMetrics, twin: SeriesMetrics, red: SeriesMetrics, profile: Profile,
+              n_plain: int, rng: np.random.Generator) -> tuple[str, dict, float]:  # fmt: skip
+    """The spectral slopes by the twin as control variate (:data:`MF_SLOPE_RULE`).
+
+    Returns (worst status of both slopes, values, the largest standard error over
+    the one plain sampling with ``n_plain`` engine realisations would have, predicted
+    from the twin's own bootstrap SE over its m realisations times sqrt(m / n_plain)).
+    """
+    lf, le = _log_spectra(full, profile)
+    _, lt = _log_spectra(twin, profile)
+    n, m, nb = le.shape[0], lt.shape[0], 100
+    ip = np.vstack([np.arange(n), rng.integers(0, n, (nb, n))])
+    ix = np.vstack([np.arange(n, m), n + rng.integers(0, m - n, (nb, m - n))])
+    ye, xp = le[ip], lt[ip]  # (1 + nb, n, bins)
+    xc = xp - xp.mean(axis=1, keepdims=True)
+    vx = (xc * xc).sum(axis=1)
+    cov = (xc * (ye - ye.mean(axis=1, keepdims=True))).sum(axis=1)
+    # a resample of one pair drawn n times keeps the sample's alpha (row 0: the sample)
+    one = (ip.min(axis=1) == ip.max(axis=1))[:, None] | ~(vx > 0)
+    alpha = np.where(one, 0.0, cov / np.where(one, 1.0, vx))
+    alpha = np.where(one, alpha[:1], alpha)
+    xall = np.concatenate([xp, lt[ix]], axis=1).mean(axis=1)
+    est = ye.mean(axis=1) + alpha * (xall - xp.mean(axis=1))  # (1 + nb, bins)
+    fits = metrics._broken_lines(lf, est)
+    # the twin's own slopes over its m: plain sampling's SE at n_plain, scaled from them
+    twin_se = np.std(metrics._broken_lines(lf, xall[1:]), axis=0, ddof=1) * np.sqrt(m / n_plain)
+    statuses, values, ratio = [], {}, 0.0
+    for k, which in enumerate(("slope_low", "slope_high")):
+        v, se = float(fits[0, k]), float(np.std(fits[1:, k], ddof=1))
+        ref, ref_se = getattr(red.slopes, which), getattr(red.slopes, which + "_se")
+        st, z = se_agreement(v, se, ref, ref_se)
+        plain = float(twin_se[k])
+        ratio = max(ratio, se / plain if plain > 0 else float("inf"))
+        statuses.append(st)
+        values[which] = {"full": {"value": v, "se": se}, "reduced": {"value": ref, "se": ref_se},
+                         **z, "multifidelity": {"n": n, "n_twin": m, "se_vs_plain": se / plain
+                                                if plain > 0 else None}}  # fmt: skip
+    return worst(statuses), values, ratio
+
+
+def compare_series_mf(
+    model: str, ms: dict[str, SeriesMetrics], profile: Profile, n_plain: int, details: str
+) -> tuple[list[Check], float]:
+    """:func:`compare_series`'s agreement checks by the multifidelity estimator.
+
+    ``ms``: the metrics of "full" (n realisations), "reduced", "twin", "envelope"
+    (m each, the first n under the engine's noise).  Returns the checks and the
+    largest predicted interval width over plain sampling's with ``n_plain``
+    engine realisations (above 1: the twin does not pay, sample plainly).
+    """
+    full, red, twin, env = ms["full"], ms["reduced"], ms["twin"], ms["envelope"]
+    checks, ratios = [], []
+
+    def paired(metric: str, attr: str, what: str) -> None:
+        st, v, ratio = mf_equivalence(getattr(full, attr), getattr(red, attr),
+                                      getattr(twin, attr), getattr(env, attr), n_plain,
+                                      _mf_rng(profile, model, metric))  # fmt: skip
+        ratios.append(ratio)
+        checks.append(Check(name=f"agreement.{metric}.{model}", status=st, values=v,
+                            tolerance=MF_RULE, details=f"{what}; {details}"))  # fmt: skip
+
+    paired("log10_rms", "log_rms", "log10 RMS of the balancing error (Fig. rms)")
+    band_status, band_values = [], []
+    for k, fc in enumerate(red.band_centres):
+        st, v, ratio = mf_equivalence(
+            full.band_log_power[:, k], red.band_log_power[:, k], twin.band_log_power[:, k],
+            env.band_log_power[:, k], n_plain, _mf_rng(profile, model, f"band{k}"),
+        )  # fmt: skip
+        ratios.append(ratio)
+        band_status.append(st)
+        band_values.append({"centre_hz": float(fc), "status": st, **v})
+    checks.append(
+        Check(
+            name=f"agreement.spectrum_bands.{model}",
+            status=worst(band_status),
+            values={"bands": band_values},
+            tolerance=MF_RULE + "; per log-spaced band of log10 PSD, worst band decides",
+            details=f"Welch PSD of the balancing error (Fig. pwsp); {details}",
+        )
+    )
+    st, v, ratio = mf_slopes(full, twin, red, profile, n_plain, _mf_rng(profile, model, "slopes"))
+    ratios.append(ratio)
+    checks.append(Check(name=f"agreement.spectral_slopes.{model}", status=st, values=v,
+                        tolerance=MF_SLOPE_RULE, details="two power laws fitted to the mean "
+                        f"spectrum (Fig. pwsp); {details}"))  # fmt: skip
+    paired(
+        "stcc_peak_median",
+        "tau_hat_median",
+        "median first dominant STCC peak tau_hat of R(x_T', x_M') (Fig. sccpeak)",
+    )
+    paired(
+        "stcc_fast_fraction",
+        "fast_fraction",
+        "fraction of windows with tau_hat < tau (Fig. sccpeak:pdf)",
+    )
+    paired("log10_velocity_sd", "log_velocity_sd", "log10 SD of the velocity error (Fig. velo)")
+    return checks, max(ratios)
+
+
+def multifidelity_series(
+    args: tuple, profile: Profile, nearest: str | None, precision: str
+) -> tuple[list[Check], dict] | str:
+    """One model's series checks with the engine on ``profile.mf_engine_realizations``.
+
+    ``args``: :func:`run_pair`'s (``n`` = the plain allocation, series_realizations);
+    ``nearest``: the MuJoCo integrator of the nearest twin for an engine judged by
+    refinement (None: the engine's own exact twin).  The twin, the reduced model and
+    the envelope twin run ``profile.mf_twin_realizations`` under the same noise (the
+    first n are the engine's).  Returns why, a line for the plain checks' details (the
+    caller samples plainly), when at the correlations measured some check's interval
+    would be wider than plain sampling's (the engine outside the twin's regime); else
+    (checks, the stage's data).
+    """
+    import time
+
+    from validation.checks import multifidelity as mfe
+    from validation.checks.conformance import run_envelope_twin
+
+    model, beta, amplitude, duration, n_plain, seed = args[:6]
+    n, m = profile.mf_engine_realizations, max(profile.mf_twin_realizations, n_plain)
+    if not mfe.MIN_PAIRED <= n < n_plain:
+        raise ParameterError(f"mf_engine_realizations must be 0 or in [{mfe.MIN_PAIRED}, "
+                             f"series_realizations = {n_plain}), got {n}")  # fmt: skip
+    cheap = (*args[:4], m, *args[5:])
+    t0 = time.perf_counter()
+    full = run_full(*args[:4], n, *args[5:])
+    t1 = time.perf_counter()
+    red = run_reduced(*cheap[:8])
+    twin = run_twin(*cheap[:9], "mujoco", nearest) if nearest else run_twin(*cheap)
+    w = (t1 - t0) / n / max((time.perf_counter() - t1) / m, 1e-9)
+    stepper = nearest or twin_integrator(model, *args[8:])
+    env = run_envelope_twin(*cheap[:8], fields=SERIES_FIELDS, integrator=stepper)
+    runs = {"full": full, "reduced": red, "twin": twin, "envelope": env,
+            "reduced_n": head(red, n), "twin_n": head(twin, n)}  # fmt: skip
+    ms = {k: series_metrics(tr, profile, 0.1, profile.spectrum_segment) for k, tr in runs.items()}
+    y = ms["full"].log_rms - ms["reduced_n"].log_rms
+    rho = abs(mfe.control_variate(y, ms["twin_n"].log_rms - ms["reduced_n"].log_rms)[1])
+    details = (
+        f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
+        f"multifidelity: engine {n} x {duration:g} s, twin and reduced {m} x {duration:g} s "
+        f"(same noise, nested; plain sampling: {n_plain} x {duration:g} s), seed {seed}, "
+        f"largest |theta| {float(np.max(full.attrs['max_abs_angle'])):.2g} rad, cost ratio "
+        f"engine : twin + reduced w = {w:.3g} (measured), MFMC-optimal m/n for the RMS's "
+        f"rho: {mfe.optimal_ratio(rho, max(w, 1e-9)):.3g}"
+    )
+    checks, ratio = compare_series_mf(model, ms, profile, n_plain, details)
+    if not ratio <= 1.0:
+        return (f"multifidelity not used: with the engine on {n} and the twin on {m} "
+                f"realisations an interval would be {ratio:.3g} times plain sampling's "
+                f"(log10 RMS rho {rho:.6g}), so the engine ran {n_plain}")  # fmt: skip
+    own = compare_series(model, ms["full"], ms["reduced_n"], "", details, ms["twin_n"])
+    own = [c for c in own if c.name.startswith("twin.")]
+    checks += [not_applicable(c) for c in own] if nearest else own
+    checks.append(trajectory_check(model, full, runs["reduced_n"], details))
+    return checks, {"full": full, "reduced": red, "metrics_full": ms["full"],
+                    "metrics_reduced": ms["reduced"]}  # fmt: skip
 
 
 #: The departure the small-angle regime allows (cip.model.small_angle_limit: sin theta =

@@ -1,0 +1,216 @@
+"""The two-model MFMC / control-variate estimator on synthetic data with a known mean."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from validation.checks import multifidelity as mf
+
+MU_Y, MU_X = 0.3, -0.2
+
+
+def draw(rng: np.random.Generator, n: int, m: int, rho: float, sy: float = 2.0,
+         sx: float = 0.5, draws: int = 1) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(draws, n) y and (draws, m) x, corr(y, x) = rho, x[:, :n] paired with y."""
+    z1 = rng.standard_normal((draws, m))
+    z2 = rng.standard_normal((draws, n))
+    x = MU_X + sx * z1
+    y = MU_Y + sy * (rho * z1[:, :n] + np.sqrt(1 - rho**2) * z2)
+    return y, x
+
+
+def estimates(rho: float, n: int, m: int, draws: int, seed: int) -> list[mf.MFEstimate]:
+    y, x = draw(np.random.default_rng(seed), n, m, rho, draws=draws)
+    return [mf.mfmc_estimate(y[k], x[k]) for k in range(draws)]
+
+
+def test_alpha_one_is_engine_minus_twin_plus_twin_minus_reduced():
+    rng = np.random.default_rng(1)
+    y, x = draw(rng, 4, 30, 0.9)
+    est = mf.mfmc_estimate(y[0], x[0], alpha=1.0)
+    assert est.mean == pytest.approx((y[0] - x[0, :4]).mean() + x[0].mean(), abs=1e-14)
+
+
+def test_unbiased_over_many_draws():
+    est = estimates(0.95, 5, 60, 1500, seed=2)
+    means = np.array([e.mean for e in est])
+    se = means.std(ddof=1) / np.sqrt(means.size)
+    assert abs(means.mean() - MU_Y) < 4 * se
+
+
+@pytest.mark.parametrize("rho", [0.5, 0.9, 0.99])
+def test_variance_reduction_matches_theory(rho):
+    n, m, sy = 20, 200, 2.0
+    means = np.array([e.mean for e in estimates(rho, n, m, 1500, seed=3)])
+    theory = mf.mfmc_variance(sy, 0.5, rho, n, m)
+    assert theory == pytest.approx(sy**2 / n * (1 - (1 - n / m) * rho**2))
+    # alpha estimated from n = 20 pairs inflates the variance by O(1/n)
+    assert means.var(ddof=1) / theory == pytest.approx(1.0, abs=0.15)
+    assert means.var(ddof=1) < sy**2 / n  # better than plain sampling of y over n
+
+
+def test_estimated_variance_and_coverage():
+    est = estimates(0.9, 8, 80, 1200, seed=4)
+    inside = np.mean([e.ci95[0] <= MU_Y <= e.ci95[1] for e in est])
+    assert 0.92 <= inside <= 0.98
+    means = np.array([e.mean for e in est])
+    assert np.mean([e.se**2 for e in est]) / means.var(ddof=1) == pytest.approx(1.0, abs=0.2)
+
+
+def test_general_variance_formula_at_optimal_alpha():
+    sy, sx, rho, n, m = 1.3, 0.7, 0.8, 5, 40
+    a = rho * sy / sx
+    assert mf.mfmc_variance(sy, sx, rho, n, m, alpha=a) == pytest.approx(
+        mf.mfmc_variance(sy, sx, rho, n, m)
+    )
+    # any other alpha is worse
+    assert mf.mfmc_variance(sy, sx, rho, n, m, alpha=1.1 * a) > mf.mfmc_variance(sy, sx, rho, n, m)
+
+
+def test_control_variate_coefficient():
+    rng = np.random.default_rng(5)
+    y, x = draw(rng, 20000, 20000, 0.8)
+    a, rho = mf.control_variate(y[0], x[0])
+    assert rho == pytest.approx(0.8, abs=0.01)
+    assert a == pytest.approx(0.8 * 2.0 / 0.5, rel=0.02)
+    assert mf.control_variate(np.arange(5.0), np.ones(5)) == (0.0, 0.0)
+
+
+def test_optimal_ratio_minimises_the_budget_variance():
+    rho, w = 0.97, 50.0
+    r = mf.optimal_ratio(rho, w)
+    assert r == pytest.approx(np.sqrt(w * rho**2 / (1 - rho**2)))
+    grid = np.linspace(1.0, 10 * r, 20001)
+    best = grid[np.argmin([mf.budget_variance_ratio(rho, w, g) for g in grid])]
+    assert best == pytest.approx(r, rel=1e-2)
+    assert mf.optimal_ratio(1.0, w) == np.inf
+    assert mf.optimal_ratio(0.0, w) == 0.0
+
+
+def test_fallback_to_plain_sampling_when_rho_is_low():
+    # rho ~ 0: the control variate cannot help, sample the costly model plainly
+    alloc = mf.allocate(rho=0.02, w=30.0, budget=30.0 * 8)
+    assert not alloc.multifidelity and alloc.n == 8 and alloc.m == 8
+    assert not mf.beats_plain(0.02, 3, 64, 8)
+    # the estimator itself stays unbiased, and near ybar_n's variance (alpha estimated
+    # from n = 10 pairs adds O(1 / n))
+    est = estimates(0.0, 10, 100, 1000, seed=6)
+    means = np.array([e.mean for e in est])
+    assert abs(means.mean() - MU_Y) < 4 * means.std(ddof=1) / np.sqrt(means.size)
+    assert means.var(ddof=1) <= 1.3 * 2.0**2 / 10
+
+
+def test_allocation_with_an_exact_twin():
+    alloc = mf.allocate(rho=1.0 - 1e-12, w=30.0, budget=30.0 * 8, m_max=64)
+    assert alloc.multifidelity and alloc.n == mf.MIN_PAIRED and alloc.m == 64
+    assert mf.beats_plain(1.0 - 1e-12, 3, 64, 8)
+    assert mf.predicted_half_width_ratio(1.0, 3, 64, 8) == pytest.approx(
+        (2.0 / np.sqrt(64)) / (2.365 / np.sqrt(8)), rel=0.02
+    )
+
+
+def test_bootstrap_interval_close_to_the_t_interval():
+    rng = np.random.default_rng(7)
+    y, x = draw(rng, 40, 400, 0.9)
+    est = mf.mfmc_estimate(y[0], x[0])
+    lo, hi = mf.bootstrap_interval(y[0], x[0], np.random.default_rng(8), 2000)
+    assert lo < est.mean < hi
+    assert (hi - lo) / (2 * est.half_width) == pytest.approx(1.0, abs=0.2)
+
+
+def test_finite_nested_drops_pairs_and_extras():
+    y = np.array([1.0, np.nan, 3.0, 4.0])
+    x = np.array([1.0, 2.0, np.inf, 4.0, 5.0, np.nan, 7.0])
+    yy, xx = mf.finite_nested(y, x)
+    assert yy.tolist() == [1.0, 4.0]
+    assert xx.tolist() == [1.0, 4.0, 5.0, 7.0]
+
+
+@pytest.mark.parametrize(
+    ("y", "x", "match"),
+    [(np.ones(2), np.ones(5), "y must hold at least 3"),
+     (np.ones(4), np.ones(3), "x must hold at least"),
+     (np.array([1.0, np.nan, 2.0]), np.ones(3), "finite")],
+)  # fmt: skip
+def test_bad_input_names_the_parameter(y, x, match):
+    with pytest.raises(ValueError, match=match):
+        mf.mfmc_estimate(y, x)
+    with pytest.raises(ValueError, match="w must be > 0"):
+        mf.optimal_ratio(0.5, 0.0)
+
+
+def test_variance_ratio_with_an_exact_control():
+    rng = np.random.default_rng(9)
+    y, x = draw(rng, 4, 40, 1.0)
+    est = mf.mfmc_estimate(y[0], x[0])
+    assert est.variance_ratio == pytest.approx(4 / 40, rel=1e-9)
+    assert est.half_width / est.plain_half_width(8) == pytest.approx(
+        mf.predicted_half_width_ratio(1.0, 4, 40, 8), rel=1e-6
+    )
+
+
+# ------------------------------------------------------------------ wired into the agreement
+def _tiny_profile():
+    from dataclasses import replace
+
+    from validation.profiles import PROFILES
+
+    return replace(PROFILES["smoke"], series_realizations=4,
+                   mf_engine_realizations=3, mf_twin_realizations=8)  # fmt: skip
+
+
+def _series_args(profile, model="coupled"):
+    from validation.profiles import PAPER_BETA
+
+    return (model, PAPER_BETA[model], profile.amplitude, profile.series_duration,
+            profile.series_realizations, profile.seed_for("series", model), profile.decimate,
+            1, None, "mujoco", None)  # fmt: skip
+
+
+def test_mujoco_series_by_its_exact_twin():
+    from validation.checks import agreement
+
+    profile = _tiny_profile()
+    checks, data = agreement.multifidelity_series(_series_args(profile), profile, None, "float64")
+    names = [c.name for c in checks]
+    metrics = ("log10_rms", "spectrum_bands", "spectral_slopes", "stcc_peak_median",
+               "stcc_fast_fraction", "log10_velocity_sd")  # fmt: skip
+    own = ["twin.metrics.coupled", "agreement.trajectory.coupled"]
+    assert names == [f"agreement.{m}.coupled" for m in metrics] + own
+    assert all(c.status == "pass" for c in checks), [(c.name, c.status) for c in checks]
+    rms = checks[0].values
+    assert (rms["n"], rms["n_twin"]) == (3, 8)
+    assert rms["multifidelity"]["rho"] > 0.999999
+    assert rms["multifidelity"]["half_width_vs_plain"] < 1
+    assert data["full"].shape[0] == 3 and data["reduced"].shape[0] == 8
+    assert "multifidelity: engine 3 x 45 s, twin and reduced 8 x 45 s" in checks[0].details
+
+
+def test_uncorrelated_twin_falls_back_to_plain_sampling(monkeypatch):
+    """A control that shares no noise with the engine (rho ~ 0) is refused."""
+    from validation.checks import agreement
+
+    real = agreement.run_twin
+
+    def other_noise(*args):
+        return real(*args[:5], args[5] + 1, *args[6:])
+
+    monkeypatch.setattr(agreement, "run_twin", other_noise)
+    profile = _tiny_profile()
+    checks, data = agreement.series_model_checks(_series_args(profile), profile, None, "float64")
+    assert data["full"].shape[0] == profile.series_realizations  # the engine ran them all
+    rms = next(c for c in checks if c.name == "agreement.log10_rms.coupled")
+    assert "multifidelity" not in rms.values and rms.values["n"] == profile.series_realizations
+    assert "multifidelity not used: " in rms.details
+
+
+def test_engine_realisations_out_of_range_is_one_line():
+    from dataclasses import replace
+
+    from cipcore.params import ParameterError
+    from validation.checks import agreement
+
+    profile = replace(_tiny_profile(), mf_engine_realizations=4)
+    with pytest.raises(ParameterError, match=r"mf_engine_realizations must be 0 or in \[3, "):
+        agreement.multifidelity_series(_series_args(profile), profile, None, "float64")
