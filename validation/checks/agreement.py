@@ -19,6 +19,7 @@ from cip.simulate import DivergenceWarning
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
+from cipcore.scenario import EngineTarget, Execution, Recording, Scenario
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 from validation.checks import metrics, refinement
@@ -58,16 +59,13 @@ def lyapunov_checks(
         for beta in gains:
             p = BalanceParams(beta=beta)
             seed = profile.seed_for("lyapunov", model, beta)
-            kw = {
-                "duration": profile.lyapunov_duration,
-                "n_realizations": profile.lyapunov_realizations,
-                "seed": seed,
-                "threads": threads,
-            }
-            red = lyapunov(model, p, **kw)
+            scn = Scenario(model, p, profile.lyapunov_duration, profile.lyapunov_realizations,
+                           seed)  # fmt: skip
+            red = lyapunov(scn, execution=Execution(threads=threads))
             full = rigid_engine(engine).lyapunov(
-                model, p, physical=phys, mj_model=m, epsilon=epsilon, **kw
-            )
+                model, p, scn.duration, scn.realizations, seed, physical=phys, mj_model=m,
+                epsilon=epsilon, threads=threads,
+            )  # fmt: skip
             status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
             rows.append(
                 {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
@@ -148,34 +146,27 @@ def trajectory_distance(
 
 
 def run_pair(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    scenario: Scenario, target: EngineTarget, *, decimate: int, threads: int | None
 ) -> tuple[Trajectory, Trajectory]:
-    """Both engines, same parameters and seed: (full, reduced).
+    """Both engines, same scenario (same parameters and seed): (full, reduced).
 
-    The full model is the model file (``files[model]``, a user's ``--mjcf``, or
-    the shipped ``models/cip_<model>.xml``, stepped with ``integrator`` where
-    given), its physical parameters read from it, run by ``engine``.
+    The full model is the model file (``target.files[model]``, a user's ``--mjcf``,
+    or the shipped ``models/cip_<model>.xml``, stepped with ``target.integrator``
+    where given), its physical parameters read from it, run by ``target.engine``;
+    every ``decimate``-th step is recorded.
     """
     from cip.mjcf_params import read_mapping
 
-    p = BalanceParams(beta=beta)
-    kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
-    m = model_file(model, files, integrator)
-    full = rigid_engine(engine).simulate(
-        model, p, duration, n, seed, fields=(*SERIES_FIELDS, "angle"),
-        physical=read_mapping(m).physical(), mj_model=m, **kw,
+    model, p = scenario.model, scenario.params
+    m = model_file(model, target.files, target.integrator)
+    kw = {"amplitude": scenario.amplitude, "decimate": decimate, "threads": threads}
+    full = rigid_engine(target.engine).simulate(
+        model, p, scenario.duration, scenario.realizations, scenario.seed,
+        fields=(*SERIES_FIELDS, "angle"), physical=read_mapping(m).physical(), mj_model=m,
+        **kw,
     )  # fmt: skip
-    red = simulate(model, p, duration, n, seed, fields=SERIES_FIELDS, **kw)
+    red = simulate(scenario, recording=Recording(decimate=decimate, fields=SERIES_FIELDS),
+                   execution=Execution(threads=threads))  # fmt: skip
     return full, red
 
 
@@ -192,28 +183,16 @@ PAIRED_RULE = (
 
 
 def run_twin(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    scenario: Scenario, target: EngineTarget, *, decimate: int, threads: int | None
 ) -> Trajectory:
     """The engine's exact twin of the model file under the same noise as :func:`run_pair`."""
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin
 
-    mapping = read_mapping(model_file(model, files, integrator))
-    tw = TwinParams(**rigid_engine(engine).twin_terms(mapping))
-    return simulate_twin(
-        model, BalanceParams(beta=beta), tw, duration, n, seed, amplitude=amplitude,
-        decimate=decimate, fields=SERIES_FIELDS, threads=threads,
-    )  # fmt: skip
+    mapping = read_mapping(model_file(scenario.model, target.files, target.integrator))
+    tw = TwinParams(**rigid_engine(target.engine).twin_terms(mapping))
+    rec = Recording(decimate=decimate, fields=SERIES_FIELDS)
+    return simulate_twin(scenario, tw, recording=rec, execution=Execution(threads=threads))
 
 
 def compare_series(
@@ -424,8 +403,8 @@ def series_checks(
     # the direct checks first (their own seed): they decide each model's tier, which says
     # whether the twin's metrics judge the engine (listed after the series checks)
     direct = instrument_checks(
-        profile.seed_for("twin"), profile.series_realizations, threads, files=files,
-        engine=engine, integrator=integrator,
+        profile.seed_for("twin"), profile.series_realizations, threads,
+        target=EngineTarget(engine, integrator, files),
     )  # fmt: skip
     by_refinement = {
         c.name.rsplit(".", 1)[1]
@@ -443,19 +422,19 @@ def series_checks(
     amplitude = profile.series_amplitude(precision)
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("series", model)
-        args = (
-            model, beta, amplitude, profile.series_duration,
-            profile.series_realizations, seed, profile.decimate, threads, files, engine,
-            integrator,
-        )  # fmt: skip
-        full, red = run_pair(*args)
+        scn = Scenario(model, BalanceParams(beta=beta), profile.series_duration,
+                       profile.series_realizations, seed, amplitude)  # fmt: skip
+        target = EngineTarget(engine, integrator, files)
+        run = {"decimate": profile.decimate, "threads": threads}
+        full, red = run_pair(scn, target, **run)
         if model in by_refinement:
-            twin = run_twin(*args[:9], "mujoco", nearest[model])
+            twin = run_twin(scn, EngineTarget("mujoco", nearest[model], files), **run)
             env_integrator = nearest[model]
         else:
-            twin = run_twin(*args)
+            twin = run_twin(scn, target, **run)
             env_integrator = twin_integrator(model, files, engine, integrator)
-        env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS, integrator=env_integrator)
+        rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
+        env = run_envelope_twin(scn, recording=rec, threads=threads, integrator=env_integrator)
         mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
         mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
         mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
@@ -519,15 +498,14 @@ def amplitude_scan(
         seed = profile.seed_for("scan", model)
         stepper = twin_integrator(model, files, engine, integrator)
         for amp in profile.scan_amplitudes:
-            args = (
-                model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
-                profile.decimate, threads, files, engine, integrator,
-            )  # fmt: skip
-            full, red = run_pair(*args)
-            twin = run_twin(*args)
-            env = run_envelope_twin(
-                *args[:8], fields=("balancing_error",), integrator=stepper
-            )  # fmt: skip
+            scn = Scenario(model, BalanceParams(beta=beta), profile.scan_duration,
+                           profile.scan_realizations, seed, amp)  # fmt: skip
+            target = EngineTarget(engine, integrator, files)
+            run = {"decimate": profile.decimate, "threads": threads}
+            full, red = run_pair(scn, target, **run)
+            twin = run_twin(scn, target, **run)
+            rec = Recording(decimate=profile.decimate, fields=("balancing_error",))
+            env = run_envelope_twin(scn, recording=rec, threads=threads, integrator=stepper)
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
             et, ee = twin["balancing_error"], env["balancing_error"]
             rel = trajectory_distance(full, red)
@@ -651,7 +629,7 @@ def rod_length_study(
 
     import xarray as xr
 
-    from validation.sweep import Study, default_studies_dir, mean_ci, run_sweep
+    from validation.sweep import Study, SweepPool, default_studies_dir, mean_ci, run_sweep
 
     base = Study.from_toml(default_studies_dir() / "rod_length.toml").as_dict()
     base.update(profile.rod_study)
@@ -666,7 +644,9 @@ def rod_length_study(
     # in this process, its realisations on the run's threads: a point takes well under a
     # second at the quick profile, less than a worker process's start-up (measured: the
     # stage's wall time was 2.3x its CPU time with two worker processes)
-    rep = run_sweep(study, where, workers=1, point_threads=workers or os.cpu_count() or 1)
+    rep = run_sweep(
+        study, where, pool=SweepPool(workers=1, point_threads=workers or os.cpu_count() or 1)
+    )
     with xr.open_dataset(rep.dataset_path, engine="scipy") as f:
         ds = f.load()
     lengths = ds["rod_length_ratio"].values
@@ -810,21 +790,21 @@ def instrument_checks(
     n_realizations: int,
     threads: int | None = None,
     *,
-    files: dict[str, str] | None = None,
+    target: EngineTarget = EngineTarget(),
     fault=None,
     models: tuple[str, ...] = MODEL_NAMES,
-    engine: str = "mujoco",
-    integrator: str | None = None,
 ) -> list[Check]:
     """Full model vs the engine's exact twin, the delay, the rod, the declared model.
 
-    ``files`` maps a model to a user's MJCF (default: the shipped files);
-    ``fault`` a :class:`validation.faults.catalogue.Fault` injected into the engine only;
-    ``engine`` the rigid-body engine (its twin, tolerances and rollout backend);
-    ``integrator`` the MuJoCo integrator run instead of the file's.
+    ``target`` names the rigid-body engine (its twin, tolerances and rollout
+    backend), the MuJoCo integrator run instead of the file's and the user's model
+    files (default: the shipped files); ``fault`` a
+    :class:`validation.faults.catalogue.Fault` injected into the engine only.
     """
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin
+
+    files, engine, integrator = target.files, target.engine, target.integrator
 
     eng = rigid_engine(engine)
     caps = eng.capabilities
@@ -886,14 +866,10 @@ def instrument_checks(
                 **kw,
             )
         twin = simulate_twin(
-            model,
-            p,
+            Scenario(model, p, TWIN_WINDOW, n_realizations, seed, TWIN_AMPLITUDE),
             twin_p,
-            TWIN_WINDOW,
-            n_realizations,
-            seed,
-            fields=("balancing_error", "tip_position"),
-            **kw,
+            recording=Recording(fields=("balancing_error", "tip_position")),
+            execution=Execution(threads=threads),
         )
         ef, et = full["balancing_error"], twin["balancing_error"]
         complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
@@ -922,9 +898,7 @@ def instrument_checks(
         if mp.n_controllers == 2:
             sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
             st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
-            rod = rod_check(
-                model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details
-            )
+            rod = rod_check(model, sf, st, ef, twin_p, (caps.rod, eng.rod_tolerance), details)
             checks.append(rod if judged == refinement.TWIN else not_applicable(rod))
         if caps.precision == "float32" and judged == refinement.TWIN:
             checks.append(refinement.not_run(model, refinement.FLOAT32_RULE))

@@ -103,6 +103,7 @@ def cmd_lyapunov(a: argparse.Namespace) -> int:
 
 # --------------------------------------------------------- critical gain
 def cmd_critical_gain(a: argparse.Namespace) -> int:
+    from cipcore.scenario import Execution, Scenario
     from reduced.lyapunov import critical_gain, numerical_setting
 
     lo, hi = a.beta_range
@@ -113,16 +114,11 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
     check_lyapunov_duration(a, params.tau, params.dt)
     check_work("--duration", a.realizations, a.duration, params.dt, runs=a.gains, force=a.force)
     res = critical_gain(
-        a.model,
-        params,
+        Scenario(a.model, params, a.duration, a.realizations, a.seed),
         (lo, hi),
         target=a.target,
         n_gains=a.gains,
-        duration=a.duration,
-        n_realizations=a.realizations,
-        seed=a.seed,
-        threads=a.threads,
-        progress=progress_enabled(),
+        execution=Execution(threads=a.threads, progress=progress_enabled()),
     )
     setting = numerical_setting(params, a.duration, a.realizations)
     if a.json:

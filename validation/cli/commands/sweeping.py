@@ -29,6 +29,7 @@ from validation.cli.ci_options import progress_enabled
 from validation.sweeps import (
     METRICS,
     Study,
+    SweepPool,
     default_studies_dir,
     parse_grid,
     run_sweep,
@@ -113,8 +114,7 @@ def cmd_sweep(a: argparse.Namespace) -> int:
             rep = run_sweep(
                 study,
                 out,
-                workers=a.workers,
-                scheduler=a.scheduler,
+                pool=SweepPool(workers=a.workers, scheduler=a.scheduler),
                 progress=progress_enabled(),
                 on_point=finished.append,
                 wait_for_lock=a.wait,
