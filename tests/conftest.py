@@ -18,6 +18,7 @@ import pytest
 XDIST_GROUPS = {
     "test_experiment_server.py": "realtime",
     "test_experiment_browser.py": "realtime",
+    "test_server_load.py": "realtime",
     "test_harness.py": "smoke",
     "test_report_browser.py": "smoke",
     "test_ci_gate.py::test_selftest_junit_has_the_unmodified_model_and_each_fault": "selftest",
@@ -137,3 +138,15 @@ def selftest_run(tmp_path_factory):
         code = main(["selftest", "--json", "--junit", str(junit), "--quiet"])
     ((args, result),) = calls
     return code, json.loads(out.getvalue()), junit, args, result
+
+
+# Hypothesis profiles of the fuzz test generated from the parser (tests/test_fuzz_cli.py):
+# "ci", its default here (a fixed seed and a budget under 60 s), and "long"
+# (``pytest tests/test_fuzz_cli.py --hypothesis-profile=long``: 10,000 examples).
+# Registered only: the other tests keep Hypothesis's default profile.
+from hypothesis import settings as _hypothesis_settings  # noqa: E402
+
+_hypothesis_settings.register_profile(
+    "ci", derandomize=True, max_examples=130, deadline=None, database=None
+)
+_hypothesis_settings.register_profile("long", max_examples=10_000, deadline=None)

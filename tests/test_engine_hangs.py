@@ -8,6 +8,7 @@ group running.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -21,6 +22,30 @@ HANDSHAKE = (
     "sys.stdin.buffer.readline()\n"
     "print(json.dumps({'protocol': 'cipval-chunk', 'version': 1, 'engine': 'bad'}), flush=True)\n"
 )
+
+#: an engine that answers chunks 1 and 2 with its start states held and chunk 3 with a NaN
+#: at realisation 1, step 5, state entry 2 (the message names the chunk, not a stage)
+NAN_ENGINE = """
+import json, sys
+import numpy as np
+stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+h = json.loads(stdin.readline())
+R, S, U = h["n_realizations"], h["nstate"], h["nu"]
+stdout.write(json.dumps({"protocol": "cipval-chunk", "version": 1, "engine": "nan"}).encode()
+             + b"\\n")
+stdout.flush()
+for chunk in range(1, 10**6):
+    n = int(np.frombuffer(stdin.read(8), "<i8")[0])
+    if n == 0:
+        break
+    start = np.frombuffer(stdin.read(8 * R * S), "<f8").reshape(R, 1, S)
+    stdin.read(8 * R * n * U)
+    states = np.repeat(start, n, axis=1).copy()
+    if chunk == 3:
+        states[min(1, R - 1), 4, 2] = np.nan
+    stdout.write(np.zeros(1, "<i8").tobytes() + states.tobytes())
+    stdout.flush()
+"""
 
 #: name -> the engine's body (after it wrote its pid), what its message must say
 ENGINES = {
@@ -50,6 +75,7 @@ ENGINES = {
         "sys.stderr.write('the last words\\n'); sys.stderr.flush(); time.sleep(600)",
         "the last words",
     ),
+    "sends NaN states": (NAN_ENGINE, "sent a non-finite state (nan) in its answer to chunk 3"),
     "spawns a child and stalls": (
         "import subprocess, time\nsubprocess.Popen(['sleep', '600'])\ntime.sleep(600)",
         "did not answer the handshake",
@@ -97,3 +123,28 @@ def test_engine_timeout_needs_an_engine_command():
 
     assert main(["contract", "--engine", "mujoco", "--engine-timeout", "5"]) == 2
     assert main(["contract", "--engine-cmd", "x", "--engine-timeout", "-1"]) == 2
+
+
+def test_an_engine_sending_nan_ends_run_with_one_line_naming_the_engine_and_chunk(tmp_path):
+    """``run`` (not only ``contract``): exit 4, one stderr line naming the engine and the
+    chunk, no warnings with source lines (``tr = simulate_full(``), the partial results
+    kept naming the stage."""
+    script = tmp_path / "engine.py"
+    script.write_text(textwrap.dedent(NAN_ENGINE))
+    out = tmp_path / "out"
+    r = subprocess.run(
+        [sys.executable, "-m", "validation.cli.main", "run", "--profile", "smoke",
+         "--no-figures", "--quiet", "--engine-cmd", f"{sys.executable} {script}",
+         "--engine-timeout", "5", "--out", str(out)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert r.returncode == 4, (r.returncode, r.stderr[-2000:])
+    lines = [x for x in r.stderr.splitlines() if x.strip()]
+    assert len(lines) == 1, r.stderr[-2000:]
+    line = lines[0]
+    assert line.startswith("cip-validate: engine ") and str(script) in line, line
+    assert "chunk 3 (100 steps x 3 realisations" in line, line
+    assert "realisation 1, step 5, state entry 2" in line, line
+    assert "crashed" not in line and "simulate_full" not in r.stderr
+    results = json.loads((out / "results.json").read_text())
+    assert results["partial"] is True and "chunk 3" in results["crashed"]["error"]

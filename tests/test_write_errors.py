@@ -1,8 +1,10 @@
 """Outputs are atomic: a full disk is one line naming the file, exit 2, nothing partial.
 
 Where the test may mount one (root, Linux), a real full disk: a tmpfs of 64 KiB
-filled to the brim.  Elsewhere, and for errors at chosen files, a patched
-``fsync`` in :mod:`cipcore.atomic` raising ENOSPC (the helper's own error path).
+filled to the brim.  Elsewhere, and for errors at chosen files, a
+:class:`helpers.WriteFault` raising ENOSPC.  Every writer under every kind of fault
+(the n-th write, ENOSPC, EIO, EACCES) is tested in ``test_write_faults.py``; this file
+holds the real full disk and what the messages say beyond the path.
 """
 
 from __future__ import annotations
@@ -14,8 +16,8 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from helpers import WriteFault
 
-from cipcore import atomic
 from cipcore.atomic import WriteError, write_text
 from validation.cli.main import main
 
@@ -48,29 +50,14 @@ def full_dir(tmp_path, monkeypatch):
         subprocess.run(["umount", "-l", str(where)], check=False)
         return
     where.mkdir(exist_ok=True)
-    real = atomic.os.fsync
-
-    def fsync(fd: int) -> None:
-        fd_path = Path(f"/proc/self/fd/{fd}")
-        if not fd_path.exists() or str(where) in os.readlink(fd_path):
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        real(fd)
-
-    monkeypatch.setattr(atomic.os, "fsync", fsync)
+    # every write() under it fails after half its data, as on a disk that fills up
+    WriteFault(f"{where}/*", "write", errno.ENOSPC, nth=0).install(monkeypatch.setattr)
     yield where
 
 
 def _fail_at(monkeypatch, name: str) -> None:
-    """Make the atomic writer fail with ENOSPC for files called ``name`` only."""
-    real = atomic.atomic_path.__wrapped__
-
-    def failing(path):
-        gen = real(path)
-        if Path(path).name == name:
-            raise WriteError(path, os.strerror(errno.ENOSPC))
-        return gen
-
-    monkeypatch.setattr(atomic, "atomic_path", atomic.contextmanager(failing))
+    """Make the first ``write()`` of files called ``name`` only fail with ENOSPC."""
+    WriteFault(f"*/{name}", "write", errno.ENOSPC).install(monkeypatch.setattr)
 
 
 def _one_error_line(err: str) -> str:

@@ -614,11 +614,14 @@ def finish_paper_figures(
     proc.wait()
     for path in _figure_job_files(job):
         path.unlink(missing_ok=True)
+    from validation.report.figures import PAPER_FIGURES, WRITE_ERROR, WRITE_ERROR_STATUS
+
     if proc.returncode != 0:
         err.seek(0)
         why = (err.read().strip().splitlines() or ["no output"])[-1]
+        if proc.returncode == WRITE_ERROR_STATUS and why.startswith(WRITE_ERROR):
+            raise WriteError(*json.loads(why.removeprefix(WRITE_ERROR)))  # a full disk: exit 2
         raise RuntimeError(f"drawing the figures failed: {why}")
-    from validation.report.figures import PAPER_FIGURES
 
     out.seek(0)
     files = [Path(line) for line in out.read().splitlines() if line.strip()]

@@ -74,7 +74,8 @@ No engine can hang a run.  The handshake must arrive within
 s plus :data:`STEP_TIMEOUT` s per realisation-step of the chunk (R n), each
 write likewise (an engine that stops reading); ``--engine-timeout S`` sets the
 first two.  An engine past its time, one that exits, closes its output, sends
-a short or garbled answer or breaks the protocol raises
+a short or garbled answer, a non-finite state (NaN or inf: named with its chunk,
+realisation, step and entry) or breaks the protocol raises
 :class:`EngineProcessError` naming the command, what was expected, the first
 bytes received and the last lines of the engine's stderr, and its whole
 process group (it runs in a session of its own) is killed; the CLI then exits
@@ -308,7 +309,9 @@ class ProcessRollout:
         self.n_realizations = n_realizations
         self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         self.nu = model.nu
+        self.timestep = float(model.opt.timestep)
         self._warnings = 0
+        self._chunks = 0  # chunks answered in this session (the next one's number - 1)
         key = tuple(self.command)
         line = (json.dumps(header(model, n_realizations)) + "\n").encode()
         kept = _take_idle(key)
@@ -416,9 +419,26 @@ class ProcessRollout:
             raise self._broken(f"protocol error: answered {len(data)} of the {want} bytes of "
                                f"a response frame (int64 warnings, {out.size} float64)",
                                data)  # fmt: skip
+        self._chunks += 1
+        states = np.frombuffer(data[8:], _F64).reshape(out.shape)
+        if not np.isfinite(states).all():
+            raise self._broken(self._non_finite(states, state))
         self._session["in_frame"] = False
         self._warnings = int(np.frombuffer(data[:8], _I64)[0])
-        out[...] = np.frombuffer(data[8:], _F64).reshape(out.shape)
+        out[...] = states
+
+    def _non_finite(self, states: np.ndarray, start: np.ndarray) -> str:
+        """What :meth:`_broken` says of an answer holding NaN or inf: the chunk (its number
+        in the session, its time span in s), the first realisation, step and state entry."""
+        r, k, i = (int(x[0]) for x in np.nonzero(~np.isfinite(states)))
+        n = states.shape[1]
+        t0 = float(start[0, 0])  # a state's first entry is the time (mjSTATE_FULLPHYSICS)
+        return (
+            f"sent a non-finite state ({float(states[r, k, i])!r}) in its answer to chunk "
+            f"{self._chunks} ({n} steps x {states.shape[0]} realisations, t = {t0:g} to "
+            f"{t0 + n * self.timestep:g} s): realisation {r}, step {k + 1}, state entry "
+            f"{i}"
+        )
 
     def warnings(self) -> int:
         return self._warnings

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import re
 import signal
@@ -22,7 +21,8 @@ from typing import Any, NoReturn
 
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import PAPER, BalanceParams, ParameterError, whole_steps
-from cipcore.registry import REFERENCE, engine_names
+from cipcore.registry import REFERENCE
+from validation.cli.domains import Domain, add_option
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 #: exit status after SIGINT / SIGTERM (128 + signal number, the shell's convention)
@@ -33,6 +33,8 @@ PROG = "cip-validate"
 #: a command asks for ``--force``.  The paper profile's largest stage is ~6e8; at the
 #: rigid-body engine's ~1e6 realisation-steps/s per core, 2e10 is several hours.
 MAX_WORK = 2e10
+#: Most delay steps tau / dt (the paper's: 100); every realisation holds a buffer of them.
+MAX_DELAY_STEPS = 100_000
 
 
 class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
@@ -83,6 +85,9 @@ class CLIParser(argparse.ArgumentParser):
                 return
             option, eq, value = token.partition("=")
             action = self._option_string_actions.get(option)
+            if action is not None and eq and value == "--" and action.nargs != 0:
+                # argparse drops a "--" value and would store [] (Python 3.11)
+                usage_error(f"{option} needs a value, got '--'")
             if action is None or isinstance(action, repeatable):
                 continue
             if not eq and action.nargs != 0:
@@ -95,7 +100,8 @@ class CLIParser(argparse.ArgumentParser):
             seen[action.dest] = value
 
     def error(self, message: str) -> NoReturn:
-        usage_error(message)
+        # a declared domain's message reads "--tau must be ...", not "argument --tau: must be"
+        usage_error(re.sub(r"^argument ([^:]+): (must |needs )", r"\1 \2", message))
 
 
 def usage_error(message: str) -> NoReturn:
@@ -108,121 +114,53 @@ def usage_error(message: str) -> NoReturn:
 
 
 # ------------------------------------------------------------ value types
-def positive_int(text: str) -> int:
-    """An integer >= 1 (argparse type)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return v
+# argparse types of the options declared in :mod:`validation.cli.domains`: each carries its
+# domain (``type.domain``), so the fuzz test and the docs read the same declaration
+positive_int = Domain("count", "int", low=1).converter()
+nonnegative_int = Domain("index", "int", low=0).converter()
+finite_float = Domain("number", "float").converter()
+positive_float = Domain("positive number", "float", low=0.0, low_open=True).converter()
+nonnegative_float = Domain("non-negative number", "float", low=0.0).converter()
+grid = Domain("grid", "grid").converter()
 
 
 def int_at_least(minimum: int):
     """argparse type: an integer >= ``minimum``."""
-
-    def convert(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"expected an integer >= {minimum}, got {text!r}"
-            ) from None
-        if v < minimum:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {minimum}, got {text!r}")
-        return v
-
-    return convert
-
-
-def nonnegative_int(text: str) -> int:
-    """An integer >= 0 (argparse type)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
-    return v
-
-
-def finite_float(text: str) -> float:
-    """A finite number (argparse type)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}") from None
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
-    return v
-
-
-def positive_float(text: str) -> float:
-    """A finite number > 0 (argparse type)."""
-    v = finite_float(text)
-    if v <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return v
-
-
-def nonnegative_float(text: str) -> float:
-    """A finite number >= 0 (argparse type)."""
-    v = finite_float(text)
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
-
-
-def grid(text: str) -> tuple[float, float, int]:
-    """``LOW:HIGH:N``: N >= 2 evenly spaced values from LOW < HIGH (argparse type)."""
-    try:
-        lo, hi, n = text.split(":")
-        lo_f, hi_f, n_i = float(lo), float(hi), int(n)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected LOW:HIGH:N, got {text!r}") from None
-    if not (math.isfinite(lo_f) and math.isfinite(hi_f) and lo_f < hi_f):
-        raise argparse.ArgumentTypeError(f"needs finite LOW < HIGH, got {text!r}")
-    if not 2 <= n_i <= 10_000:
-        raise argparse.ArgumentTypeError(f"N must be an integer in [2, 10000], got {text!r}")
-    return lo_f, hi_f, n_i
+    return Domain(f"count >= {minimum}", "int", low=minimum).converter()
 
 
 # ---------------------------------------------------------- option groups
 def add_model_args(p: argparse.ArgumentParser, *, beta: bool = True) -> None:
     """--model and the reduced-model parameters (paper values as defaults)."""
-    p.add_argument("--model", choices=MODEL_NAMES, default=MODEL_NAMES[0],
-                   help="balancing model: " + "; ".join(
-                       f"{m} = {get_model(m).description}" for m in MODEL_NAMES))  # fmt: skip
+    add_option(p, "--model", domain="model", default=MODEL_NAMES[0],
+               help="balancing model: " + "; ".join(
+                   f"{m} = {get_model(m).description}" for m in MODEL_NAMES))  # fmt: skip
     if beta:
-        p.add_argument("--beta", type=finite_float, required=True,
-                       help="feedback gain beta (1/s^2), required")  # fmt: skip
-    p.add_argument("--alpha", type=finite_float, default=PAPER["alpha"],
-                   help="g/L (1/s^2)")  # fmt: skip
-    p.add_argument("--gamma", type=finite_float, default=PAPER["gamma"],
-                   help="damping gamma (1/s)")  # fmt: skip
-    p.add_argument("--nu", type=finite_float, default=PAPER["nu"],
-                   help="noise strength nu (s^1/2)")  # fmt: skip
-    p.add_argument("--tau", type=finite_float, default=PAPER["tau"], help="delay tau (s)")
-    p.add_argument("--dt", type=finite_float, default=PAPER["dt"], help="time step (s)")
+        add_option(p, "--beta", domain="beta", required=True,
+                   help="feedback gain beta (1/s^2), required")  # fmt: skip
+    add_option(p, "--alpha", domain="alpha", default=PAPER["alpha"], help="g/L (1/s^2)")
+    add_option(p, "--gamma", domain="gamma", default=PAPER["gamma"], help="damping gamma (1/s)")
+    add_option(p, "--nu", domain="nu", default=PAPER["nu"], help="noise strength nu (s^1/2)")
+    add_option(p, "--tau", domain="tau", default=PAPER["tau"], help="delay tau (s)")
+    add_option(p, "--dt", domain="dt", default=PAPER["dt"], help="time step (s)")
 
 
 def add_run_args(p: argparse.ArgumentParser, duration: float, realizations: int) -> None:
     """--duration, --realizations, --seed, --threads, --force."""
-    p.add_argument("--duration", type=positive_float, default=duration,
-                   help="simulated time per realisation (s)")  # fmt: skip
-    p.add_argument("--realizations", type=positive_int, default=realizations,
-                   help="independent noise realisations (count)")  # fmt: skip
-    p.add_argument("--seed", type=nonnegative_int, default=0,
-                   help="root seed: fixes every random draw (integer >= 0)")  # fmt: skip
+    add_option(p, "--duration", domain="duration", default=duration,
+               help="simulated time per realisation (s)")  # fmt: skip
+    add_option(p, "--realizations", domain="realizations", default=realizations,
+               help="independent noise realisations (count)")  # fmt: skip
+    add_option(p, "--seed", domain="seed", default=0,
+               help="root seed: fixes every random draw (integer >= 0)")  # fmt: skip
     add_threads_arg(p)
     add_force_arg(p)
 
 
 def add_threads_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--threads", type=positive_int, default=None,
-                   help="worker threads (count >= 1; default: all cores); "
-                   "results do not depend on it")  # fmt: skip
+    add_option(p, "--threads", domain="workers", default=None,
+               help="worker threads (count >= 1, at most 4 per core; default: all cores); "
+               "results do not depend on it")  # fmt: skip
 
 
 def add_force_arg(p: argparse.ArgumentParser) -> None:
@@ -232,11 +170,10 @@ def add_force_arg(p: argparse.ArgumentParser) -> None:
 
 
 def add_engine_arg(p: argparse.ArgumentParser, default: str | None = REFERENCE) -> None:
-    """--engine NAME from :func:`cipcore.registry.engine_names`."""
-    names = engine_names()
-    p.add_argument("--engine", choices=names, default=default,
-                   help="engine from the registry (an engine not installed here is refused "
-                   "with the reason)")  # fmt: skip
+    """--engine NAME from :func:`cipcore.registry.engine_names` (any case)."""
+    add_option(p, "--engine", domain="engine", default=default,
+               help="engine from the registry (an engine not installed here is refused "
+               "with the reason)")  # fmt: skip
 
 
 def add_json_arg(p: argparse.ArgumentParser) -> None:
@@ -252,7 +189,7 @@ def params_from_args(
     given (e.g. ``--beta-range``).
     """
     try:
-        return BalanceParams(
+        params = BalanceParams(
             beta=a.beta if beta is None else beta, alpha=a.alpha, gamma=a.gamma, nu=a.nu,
             tau=a.tau, dt=a.dt,
         )  # fmt: skip
@@ -264,6 +201,13 @@ def params_from_args(
         if name in ("beta", "alpha", "gamma", "nu", "tau", "dt"):
             raise ParameterError(f"--{text}") from None
         raise
+    if params.delay_steps > MAX_DELAY_STEPS:
+        raise ParameterError(
+            f"--tau / --dt: the delay is {params.delay_steps} steps (tau {params.tau:g} s / dt "
+            f"{params.dt:g} s); at most {MAX_DELAY_STEPS} (the delay buffer holds them per "
+            "realisation)"
+        )
+    return params
 
 
 def dump(obj: Any) -> str:

@@ -25,8 +25,12 @@ def progress_enabled(quiet: bool = False) -> bool:
 
 def add_ci_options(p: argparse.ArgumentParser, verbose: bool = True) -> None:
     """Add ``--junit FILE``, ``--quiet`` (and ``--verbose``) to a command."""
-    p.add_argument(
+    from validation.cli.domains import add_option
+
+    add_option(
+        p,
         "--junit",
+        domain="xml out",
         metavar="FILE.xml",
         help="also write JUnit XML, one test case per check (for CI test reports)",
     )

@@ -13,9 +13,10 @@ import argparse
 
 from cipcore.params import ParameterError
 from cipcore.registry import check_engine_name, engine_names
+from validation.cli.domains import DOMAINS, INTEGRATORS, DomainError, add_option
 
-#: MuJoCo's integrator names, as the MJCF spells them.
-INTEGRATORS = ("Euler", "implicit", "implicitfast", "RK4")
+__all__ = ["COMMAND_ENGINE", "INTEGRATORS", "add_engine_cmd_arg", "add_engine_options",
+           "check_engine_options", "register_engine_cmd"]  # fmt: skip
 
 
 #: The registry name of the engine given by ``--engine-cmd``.
@@ -25,15 +26,13 @@ COMMAND_ENGINE = "command"
 def add_engine_cmd_arg(p: argparse.ArgumentParser) -> None:
     """Add ``--engine-cmd "CMD ARGS"`` (the chunk exchange protocol, :mod:`cip.engines.process`)
     and ``--engine-timeout SECONDS``."""
-    from validation.cli.args import positive_float
-
-    p.add_argument(
-        "--engine-cmd", metavar='"CMD ARGS"',
+    add_option(
+        p, "--engine-cmd", domain="command", metavar='"CMD ARGS"',
         help="an engine in another program, driven over stdin/stdout by the chunk exchange "
         f"protocol (README: Engines in other programs); registered as {COMMAND_ENGINE!r}",
     )  # fmt: skip
-    p.add_argument(
-        "--engine-timeout", metavar="SECONDS", type=positive_float, default=None,
+    add_option(
+        p, "--engine-timeout", domain="timeout", metavar="SECONDS", default=None,
         help="--engine-cmd: seconds the engine has for its handshake and for each chunk, "
         "plus 1 ms per realisation-step of the chunk (default 60); past it the engine is "
         "killed and the command exits 4",
@@ -56,15 +55,19 @@ def register_engine_cmd(command: str | None, timeout: float | None = None) -> st
 
 def add_engine_options(p: argparse.ArgumentParser) -> None:
     """Add ``--engine``, ``--engine-cmd`` and ``--integrator`` to a command's parser."""
-    p.add_argument(
+    add_option(
+        p,
         "--engine",
+        domain="engine",
         default=None,
         metavar="NAME",
         help=f"the rigid-body engine to validate ({', '.join(engine_names())}; default mujoco)",
     )
     add_engine_cmd_arg(p)
-    p.add_argument(
+    add_option(
+        p,
         "--integrator",
+        domain="integrator",
         default=None,
         metavar="NAME",
         help=f"step the model file with this MuJoCo integrator ({', '.join(INTEGRATORS)}; "
@@ -96,10 +99,10 @@ def check_engine_options(a: argparse.Namespace) -> None:
     eng = rigid_engine(a.engine)  # availability and rigid body, one line each
     if a.integrator is None:
         return
-    if a.integrator not in INTEGRATORS:
-        raise ParameterError(
-            f"--integrator must be one of {', '.join(INTEGRATORS)}, got {a.integrator!r}"
-        )
+    try:  # the parser canonicalised it; a caller from Python may pass any spelling
+        a.integrator = DOMAINS["integrator"].check(a.integrator)
+    except DomainError as exc:
+        raise ParameterError(f"--integrator {exc}") from None
     if a.integrator not in eng.integrators:
         have = ", ".join(eng.integrators) or f"none: it steps with {eng.capabilities.integrator}"
         raise ParameterError(

@@ -116,8 +116,8 @@ def engines_cases(results: dict) -> list[Case]:
 
 
 def write_junit(cases: list[Case], path: Path | str, elapsed_s: float = 0.0) -> Path:
-    """Write ``cases`` as JUnit XML to ``path`` (atomically: a temporary file, then rename)."""
-    import os
+    """Write ``cases`` as JUnit XML to ``path`` (atomically: :mod:`cipcore.atomic`)."""
+    from cipcore.atomic import write_with
 
     root = ET.Element("testsuites", name="cip-validate")
     suites: dict[str, ET.Element] = {}
@@ -142,8 +142,5 @@ def write_junit(cases: list[Case], path: Path | str, elapsed_s: float = 0.0) -> 
         s.set("errors", "0")
         s.set("skipped", str(k))
     root.set("time", f"{elapsed_s:.2f}")
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    ET.ElementTree(root).write(tmp, encoding="utf-8", xml_declaration=True)
-    os.replace(tmp, path)
-    return path
+    tree = ET.ElementTree(root)
+    return write_with(path, lambda tmp: tree.write(tmp, encoding="utf-8", xml_declaration=True))

@@ -169,6 +169,26 @@ def build_parser(command: str | None = None, *, full: bool = False) -> CLIParser
     return parser
 
 
+def domains_table() -> str:
+    """The Markdown table of every option's declared domain (``docs/commands.md``).
+
+    One row per command and option that has a domain (:mod:`validation.cli.domains`),
+    commands in the order of :data:`COMMANDS`; builds every command's parser.
+    """
+    from validation.cli.domains import option_table
+
+    rows, todo = [], [([], build_parser(full=True))]
+    while todo:
+        words, parser = todo.pop(0)
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                todo += [([*words, n], p) for n, p in action.choices.items()]
+            elif words and not isinstance(action, argparse._HelpAction):
+                name = "/".join(action.option_strings) or action.dest.upper()
+                rows.append((" ".join(words), name, action))
+    return option_table(rows)
+
+
 def command_of(argv: Sequence[str]) -> str | None:
     """The command named in ``argv`` (its first word not starting with '-'), if known."""
     for word in argv:

@@ -51,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from cipcore.atomic import atomic_path
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
@@ -118,7 +119,8 @@ def export_case(path: Path, seed: int = 1, n_realizations: int = 4,
               "case_json": np.array(json.dumps(doc))}  # fmt: skip
     arrays.update({f"mjcf/{k}": np.array(v) for k, v in mjcf.items()})
     arrays.update({f"xi/{k}": v for k, v in xi.items()})
-    np.savez(path, **arrays)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:  # a file object: no ".npz" added
+        np.savez(f, **arrays)
     return Case(scenarios, mjcf, xi, seed)
 
 

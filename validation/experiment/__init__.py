@@ -12,6 +12,7 @@ Modules, one job each:
 * :mod:`.task`      -- the task model stepped between 20 ms frames (engines).
 * :mod:`.trial`     -- one trial frame by frame: end rules, samples.
 * :mod:`.recording` -- append-only recording, finalisation, loader.
+* :mod:`.finalize`  -- recordings finalised off the server's event loop.
 * :mod:`.bot`       -- the pseudo-neural controller as a subject.
 * :mod:`.protocol`  -- validation of messages from the page.
 * :mod:`.session`   -- seats, countdown, the real-time 50 Hz loop.

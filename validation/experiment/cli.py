@@ -13,7 +13,11 @@ from pathlib import Path
 from cipcore import ParameterError
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import check_count, check_positive
+from validation.cli.domains import DOMAINS
 from validation.experiment.task import DURATION, ENGINES, TaskSettings
+
+#: an output directory's declared domain: not empty, not an existing file
+OUT_DIR = DOMAINS["out dir"].converter()
 
 
 def _port(text: str) -> int:
@@ -44,7 +48,7 @@ def register(subparsers) -> None:
                    help="TCP port, integer in [0, 65535]; 0 picks a free one")  # fmt: skip
     s.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
                    help="engine that moves the sticks")  # fmt: skip
-    s.add_argument("--out", default="experiment-data", metavar="DIR",
+    s.add_argument("--out", default="experiment-data", metavar="DIR", type=OUT_DIR,
                    help="directory of the recordings (created if absent)")  # fmt: skip
     s.add_argument("--trial-duration", type=float, default=DURATION,
                    help="length of a trial (s, > 0)")  # fmt: skip
@@ -62,7 +66,7 @@ def register(subparsers) -> None:
                        "RMS tables and its figures of the movement, STCC and RMS vs "
                        "tau.")  # fmt: skip
     a.add_argument("dir", help="directory of recordings")
-    a.add_argument("--out", default=argparse.SUPPRESS, metavar="DIR",
+    a.add_argument("--out", default=argparse.SUPPRESS, metavar="DIR", type=OUT_DIR,
                    help="report directory (default: DIR/analysis)")  # fmt: skip
     a.add_argument("--no-figures", action="store_true", help="write the tables only")
     a.add_argument(
@@ -76,7 +80,8 @@ def register(subparsers) -> None:
                        description="Trials of the task played by delayed random-gain bots "
                        "(the reduced model's controller) at full speed, recorded like "
                        "subjects' trials.")  # fmt: skip
-    b.add_argument("--out", default="experiment-bots", help="directory of the recordings")
+    b.add_argument("--out", default="experiment-bots", type=OUT_DIR,
+                   help="directory of the recordings")  # fmt: skip
     b.add_argument("--mode", choices=("single", "coupled", "both"), default="both",
                    help="task: one stick, two coupled sticks, or both")  # fmt: skip
     b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")

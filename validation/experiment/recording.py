@@ -31,6 +31,7 @@ attribute ``client_events`` (column lists; see :data:`EVENT_COLUMNS`).
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -42,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from cipcore import Trajectory
+from cipcore.atomic import atomic_path
 from validation.experiment.trial import Sample
 
 FORMAT = "cipval-experiment-1"
@@ -54,6 +56,11 @@ EVENT_COLUMNS = {"mouse": ("seat", "arrival", "page_time", "x"),
 
 
 def _json(obj: Any) -> str:
+    try:  # the common case, in C: finite floats and plain types (a sample, an event)
+        return json.dumps(obj, separators=(",", ":"), allow_nan=False)
+    except (TypeError, ValueError):  # NaN or inf (written as null), numpy scalars
+        pass
+
     def fix(v: Any) -> Any:
         if isinstance(v, float) and not math.isfinite(v):
             return None
@@ -114,8 +121,9 @@ class Recorder:
         """Append one client event line (:data:`EVENT_COLUMNS`); flushed with the next sample."""
         self._f.write(_json({kind: row}) + "\n")
 
-    def finalize(self, end: dict) -> Path:
-        """Write the end record, close the log and write ``<stem>.npz``; returns its path."""
+    def close(self, end: dict) -> None:
+        """Write the end record, fsync and close the log (the first call; later ones
+        do nothing)."""
         try:
             if not self._f.closed:
                 self._write({"end": end})
@@ -123,18 +131,26 @@ class Recorder:
                 self._f.close()
         finally:
             self._fsyncs.shutdown(wait=True)
-        traj = load_jsonl(self.path)
-        out = self.stem.with_suffix(".npz")
-        tmp = self.stem.with_suffix(".npz.part")
-        with open(tmp, "wb") as f:
-            np.savez(
-                f, time=traj.time, **traj.data,
-                attrs=np.array(json.dumps(traj.attrs, default=_default)),
-            )  # fmt: skip
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, out)
-        return out
+
+    def finalize(self, end: dict) -> Path:
+        """:meth:`close`, then :func:`write_npz`; returns the ``.npz``'s path."""
+        self.close(end)
+        return write_npz(self.stem)
+
+
+def write_npz(stem: str | Path) -> Path:
+    """Write ``<stem>.npz`` from the closed log ``<stem>.jsonl`` (module docstring);
+    returns its path.  A function of the file alone: the server runs it in a process of
+    its own (parsing a 10-minute log takes seconds)."""
+    stem = Path(stem)
+    traj = load_jsonl(stem.with_suffix(".jsonl"))
+    out = stem.with_suffix(".npz")
+    with atomic_path(out) as tmp, open(tmp, "wb") as f:  # a file object: no ".npz" added
+        np.savez(
+            f, time=traj.time, **traj.data,
+            attrs=np.array(json.dumps(traj.attrs, default=_default)),
+        )  # fmt: skip
+    return out
 
 
 def _default(obj: Any) -> Any:
@@ -223,6 +239,13 @@ def find_trials(directory: str | Path) -> list[Path]:
 
 def versions() -> dict[str, str]:
     """Versions of the software that produced a recording."""
+    return dict(_versions())
+
+
+@functools.cache
+def _versions() -> dict[str, str]:
+    # read once per process: the package metadata took 40 ms per trial's start, on the
+    # server's loop, holding every other session's frames
     import importlib.metadata as md
     import platform
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from cipcore import Trajectory
+from cipcore.atomic import write_text, write_with
 from cipcore.models import MODEL_NAMES, get_model
 from validation.checks import metrics
 from validation.experiment.analysis import (
@@ -103,6 +104,11 @@ def _pick(trajs: dict[str, Trajectory], results: list[StickResult], mode: str) -
     return [best[n][:3] for n in names]
 
 
+def _save(fig, path: Path) -> None:
+    """Write ``fig`` to ``path`` (90 dpi, the format of its extension) atomically."""
+    write_with(path, lambda tmp: fig.savefig(tmp, dpi=90, format=Path(path).suffix[1:]))
+
+
 def fig_move(picks, mode: str, path: Path) -> Path:
     """Velocities of target and subject over 5 s, and spectra of the balancing error
     with the two power-law fits (paper Figs. move_s, move_c)."""
@@ -144,7 +150,7 @@ def fig_move(picks, mode: str, path: Path) -> Path:
         err = "Delta x" if get_model(mode).n_controllers == 1 else f"Delta q_{i + 1}"
         ax[1, j].set(xlabel="f (Hz)", ylabel=f"S of {err}")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
     plt.close(fig)
     return path
 
@@ -180,7 +186,7 @@ def fig_stcc(picks, mode: str, path: Path) -> Path:
             va="center",
         )
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
     plt.close(fig)
     return path
 
@@ -209,7 +215,7 @@ def fig_rmstau(results: list[StickResult], ellipses: dict, path: Path) -> Path:
            title="correlation time vs RMS")  # fmt: skip
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    _save(fig, path)
     plt.close(fig)
     return path
 
@@ -292,13 +298,13 @@ def write_report(
             names.append(fig_rmstau(used, ell, out / "rmstau.png").name)
         md += ["## Figures", ""] + [f"![{n}]({n})" for n in names]
     text = "\n".join(md) + "\n"
-    (out / "report.md").write_text(text)
-    (out / "report.html").write_text(html_report(text, out))
+    write_text(out / "report.md", text)
+    write_text(out / "report.html", html_report(text, out))
     res = {"trials": [r.as_dict() for r in results], "ellipses": ell, "duplicates": dups,
            "include_incomplete": include_incomplete, "units": UNITS,
            "table_stcc": {f"{k[0]} {k[1]}": v for k, v in rows["tau_hat"].items()},
            "table_rms": {f"{k[0]} {k[1]}": v for k, v in rows["rms"].items()},
            "table_rms_px": {f"{k[0]} {k[1]}": v for k, v in rows["rms_px"].items()},
            "figures": names}  # fmt: skip
-    (out / "results.json").write_text(json.dumps(jsonable(res), indent=1))
+    write_text(out / "results.json", json.dumps(jsonable(res), indent=1))
     return [out / "report.md", out / "report.html", out / "results.json"] + [out / n for n in names]

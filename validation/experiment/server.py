@@ -41,6 +41,7 @@ from aiohttp import WSCloseCode, WSMsgType, web
 from aiohttp.abc import AbstractAccessLogger
 
 from cipcore import ParameterError
+from validation.experiment.finalize import close_writer
 from validation.experiment.protocol import RATES, BadMessage, RateLimiter, parse
 from validation.experiment.session import Seat, Session, make_bots
 from validation.experiment.task import TaskSettings
@@ -130,10 +131,14 @@ class ExperimentServer:
         return ""
 
     async def shutdown(self, app: web.Application) -> None:
-        for s in list(self.sessions.values()):
+        # end every session first, then wait for them together: one after the other, the
+        # later ones ran on while the earlier ones were being finalised
+        sessions = list(self.sessions.values())
+        for s in sessions:
             s.end("server_stop")
-            if s._task is not None:
-                await asyncio.gather(s._task, return_exceptions=True)
+        await asyncio.gather(*(s._task for s in sessions if s._task is not None),
+                             return_exceptions=True)  # fmt: skip
+        await close_writer()  # the .npz worker, once every recording is finalised
         # then close every page's socket: a page waiting for the close frame otherwise hangs
         # until its own close timeout (10 s in aiohttp's client) while the server stops
         for ws in list(self.sockets):

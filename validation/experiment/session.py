@@ -7,6 +7,14 @@ frame is recorded as its jitter), is appended to the recording, and is sent to
 every page.  An abort, a closed page or the server stopping end the trial; the
 recording is finalised in every case.
 
+One server runs many sessions on one event loop, so nothing a session does may
+hold it (``benchmarks/bench_server_load.py`` measures this): a late frame still
+yields before it runs (the pages' messages are read and the other sessions' frames
+run in turn); mouse messages arriving up to :data:`INPUT_GRACE` s (plus the last
+frame's lateness) after the last frame are still recorded; the recording's header
+and end record are fsynced on a thread and its ``.npz`` is written in a worker
+process (:mod:`.finalize`).
+
 A human seat is bound to the socket that took it for the whole session: when
 that socket closes the seat is not free again; only a page holding the
 seat's secret (issued when the seat was taken) may take it back, and only
@@ -21,6 +29,7 @@ page's report of when it drew each frame are appended as they arrive.
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import secrets
 from dataclasses import dataclass, field
@@ -29,12 +38,19 @@ from typing import Any
 
 from cipcore import ParameterError
 from validation.experiment.bot import BotSpec, PseudoNeuralBot
+from validation.experiment.finalize import finalize
 from validation.experiment.headless import trial_stem
 from validation.experiment.recording import Recorder, make_header
 from validation.experiment.task import INITIAL_BASES, INITIAL_TIP, TaskSettings, make_task
 from validation.experiment.trial import Trial
 
 log = logging.getLogger("cipval.experiment")
+
+#: seconds after a trial's last frame, plus that frame's lateness, in which the pages' mouse
+#: messages are still recorded (arrival times past the end): a server running late reads the
+#: answers to its last frames late (benchmarks/bench_server_load.py: without this, 1 to 38
+#: of a page's last answers were missing from each recording of 16 sessions at once)
+INPUT_GRACE = 0.5
 
 
 @dataclass
@@ -115,10 +131,11 @@ class Session:
         return [s.ws for s in self.seats if s.ws is not None] + list(self.spectators)
 
     async def broadcast(self, msg: dict) -> None:
+        text = json.dumps(msg)  # once for every page
         for ws in self.clients():
             if not ws.closed:
                 try:
-                    await ws.send_json(msg)
+                    await ws.send_str(text)
                 except (ConnectionError, RuntimeError) as exc:  # closing socket
                     log.info("session %s: send failed: %s", self.id, exc)
 
@@ -178,20 +195,8 @@ class Session:
             await asyncio.sleep(1.0)
             if self.phase == "ended":
                 return
-        s = self.settings
         try:
-            self.trial = trial = Trial(s, make_task(self.engine, s))
-            for seat, bot in zip(self.seats, make_bots(s, self.seats), strict=True):
-                seat.bot = bot
-                if bot is not None:
-                    seat.pixel = bot.initial_pixel()
-            labels = [seat.label for seat in self.seats]
-            header = make_header(
-                s.as_dict(), self.engine, labels, [seat.spec for seat in self.seats],
-                self.trial_index, session=self.id, substeps=s.substeps,
-            )  # fmt: skip
-            header["client"] = [seat.client for seat in self.seats]
-            rec = Recorder(trial_stem(self.out_dir, s.mode, labels, self.trial_index), header)
+            trial, rec = await self._open()
         except Exception as exc:  # every page must hear why nothing starts
             log.exception("session %s: the trial could not start", self.id)
             self.phase = "ended"
@@ -201,41 +206,74 @@ class Session:
         self.file = rec.path
         log.info("session %s: trial started, recording %s", self.id, rec.path)
         self.phase = "running"
+        s = self.settings
         await self.broadcast({"type": "start", "offsets": s.offsets.tolist(),
                               "frame": s.frame, "duration": s.duration})  # fmt: skip
-        loop = asyncio.get_running_loop()
-        t0 = self._t0 = loop.time()
         try:
-            while not trial.ended:
-                deadline = t0 + trial.k * s.frame
-                delay = deadline - loop.time()
-                if delay > 0:
-                    await asyncio.sleep(delay)
-                if trial.ended:  # abort or disconnect while waiting
-                    break
-                now = loop.time()
-                sample = trial.frame([seat.pixel for seat in self.seats], now - deadline, now - t0)
-                rec.append(sample)
-                off = s.offsets
-                await self.broadcast({
-                    "type": "frame", "k": sample.k, "t": sample.t,
-                    "tips": [p + o for p, o in zip(sample.tip_position, off, strict=True)],
-                    "bases": [p + o for p, o in zip(sample.base_position, off, strict=True)],
-                })  # fmt: skip
-                for seat, tip, base in zip(self.seats, sample.tip_position, sample.base_position,
-                                           strict=True):  # fmt: skip
-                    if seat.bot is not None and not trial.ended:
-                        seat.pixel = seat.bot.respond(sample.k, tip - base)
+            late = await self._frames(trial, rec)
+            await asyncio.sleep(INPUT_GRACE + late)  # the pages' answers to the last frames
         except asyncio.CancelledError:
             trial.end("server_stop")
             raise
         finally:
+            self._rec = None  # no event is written once the log closes
             end = {"reason": trial.end_reason, "detail": trial.end_detail,
                    "time": trial.end_time, "samples": rec.n_samples,
                    "dropped_messages": sum(self.dropped.values()),
                    "dropped_by_type": dict(self.dropped)}  # fmt: skip
-            self.file = rec.finalize(end)
+            self.file = await finalize(rec, end)
             self.phase = "ended"
             log.info("session %s: trial ended (%s %s) after %d samples: %s", self.id,
                      trial.end_reason, trial.end_detail, rec.n_samples, self.file)  # fmt: skip
         await self.broadcast({"type": "end", **end, "file": self.file.name})
+
+    async def _open(self) -> tuple[Trial, Recorder]:
+        """The trial, its bots and its recording (the header's fsync on a thread)."""
+        s = self.settings
+        self.trial = trial = Trial(s, make_task(self.engine, s))
+        for seat, bot in zip(self.seats, make_bots(s, self.seats), strict=True):
+            seat.bot = bot
+            if bot is not None:
+                seat.pixel = bot.initial_pixel()
+        labels = [seat.label for seat in self.seats]
+        header = make_header(
+            s.as_dict(), self.engine, labels, [seat.spec for seat in self.seats],
+            self.trial_index, session=self.id, substeps=s.substeps,
+        )  # fmt: skip
+        header["client"] = [seat.client for seat in self.seats]
+        stem = trial_stem(self.out_dir, s.mode, labels, self.trial_index)
+        return trial, await asyncio.to_thread(Recorder, stem, header)
+
+    async def _frames(self, trial: Trial, rec: Recorder) -> float:
+        """Frame k at t0 + k * frame (its lateness recorded as jitter) until the trial ends;
+        returns the last frame's lateness (s).
+
+        The loop yields to the event loop before every frame, also a late one: a server
+        running behind still reads the pages' mouse messages (recorded as they arrive)
+        and runs the other sessions' frames in turn, instead of catching up frame after
+        frame with neither.
+        """
+        s = self.settings
+        loop = asyncio.get_running_loop()
+        t0 = self._t0 = loop.time()
+        late = 0.0
+        while not trial.ended:
+            deadline = t0 + trial.k * s.frame
+            await asyncio.sleep(max(0.0, deadline - loop.time()))
+            if trial.ended:  # abort or disconnect while waiting
+                break
+            now = loop.time()
+            late = now - deadline
+            sample = trial.frame([seat.pixel for seat in self.seats], late, now - t0)
+            rec.append(sample)
+            off = s.offsets
+            await self.broadcast({
+                "type": "frame", "k": sample.k, "t": sample.t,
+                "tips": [p + o for p, o in zip(sample.tip_position, off, strict=True)],
+                "bases": [p + o for p, o in zip(sample.base_position, off, strict=True)],
+            })  # fmt: skip
+            for seat, tip, base in zip(self.seats, sample.tip_position, sample.base_position,
+                                       strict=True):  # fmt: skip
+                if seat.bot is not None and not trial.ended:
+                    seat.pixel = seat.bot.respond(sample.k, tip - base)
+        return late

@@ -11,14 +11,19 @@ job (written once the rod-length study has finished) draws its two figures
 (:func:`validation.sweeps.report.plot_metric` of the study's dataset).  The
 figures go into ``out_dir``; their paths are printed, one a line, in the
 order of the jobs.  The end of stdin (the run finished, or ended first) ends
-it.
+it.  A figure it cannot write (a full disk: :class:`cipcore.atomic.WriteError`)
+ends it with status :data:`WRITE_ERROR_STATUS` and a last stderr line naming the
+file, which the run raises again (exit 2, one line), not as a crash.
 """
 
 from __future__ import annotations
 
+import json
 import pickle
 import sys
 from pathlib import Path
+
+from cipcore.atomic import WriteError
 
 
 def main() -> int:
@@ -28,23 +33,39 @@ def main() -> int:
 
     import reduced  # noqa: F401
     from validation import sweep  # noqa: F401
-    from validation.report.plots import paper_figures
+    from validation.report import plots  # noqa: F401
 
     for line in sys.stdin:
         if not line.strip():
             continue
-        path = Path(line.strip())
-        job = pickle.loads(path.read_bytes())
-        path.unlink(missing_ok=True)
-        out_dir = Path(job["out_dir"])
-        if job.get("kind", "paper") == "paper":
-            data = dict(job["kwargs"])
-            paths = paper_figures(out_dir, data, only=data.pop("only", None))
-        else:
-            paths = rod_figures(out_dir, **job["kwargs"])
-        for path in paths:
-            print(path, flush=True)
+        try:
+            _draw(Path(line.strip()))
+        except WriteError as exc:  # the parent raises it again: one line naming the file
+            print(WRITE_ERROR + json.dumps([exc.path, exc.reason]), file=sys.stderr)
+            return WRITE_ERROR_STATUS
     return 0
+
+
+#: how the worker says that it could not write a figure: its exit status, and a last
+#: stderr line of this prefix and the JSON list [path, reason]
+#: (:func:`validation.run.finish_paper_figures` raises the :class:`WriteError` again)
+WRITE_ERROR, WRITE_ERROR_STATUS = "write error: ", 3
+
+
+def _draw(job_file: Path) -> None:
+    """Draw the figures of the job pickled in ``job_file``; print their paths, one a line."""
+    from validation.report.plots import paper_figures
+
+    job = pickle.loads(job_file.read_bytes())
+    job_file.unlink(missing_ok=True)
+    out_dir = Path(job["out_dir"])
+    if job.get("kind", "paper") == "paper":
+        data = dict(job["kwargs"])
+        paths = paper_figures(out_dir, data, only=data.pop("only", None))
+    else:
+        paths = rod_figures(out_dir, **job["kwargs"])
+    for path in paths:
+        print(path, flush=True)
 
 
 #: the report's paper figures in its order: file name -> the data each draws (keyword

@@ -20,6 +20,12 @@ RUN_KEYS = ("amplitude",)
 SETTINGS = REDUCED_KEYS + PHYSICAL_KEYS + RUN_KEYS
 #: settings whose values are words, not numbers
 WORD_SETTINGS = ("integrator",)
+#: the declared domain (:data:`validation.cli.domains.DOMAINS`) of a setting that has one,
+#: the same as its command-line option's; the others are finite numbers, checked again
+#: where they are used (:class:`cip.model.CIPParams`)
+SETTING_DOMAINS = {"beta": "beta", "alpha": "alpha", "gamma": "gamma", "nu": "nu",
+                   "tau": "tau", "dt": "dt", "amplitude": "amplitude",
+                   "rod_length": "rod length", "mass_ratio": "mass ratio"}  # fmt: skip
 
 #: initial balancing error (m) of a study that does not set ``amplitude``
 DEFAULT_AMPLITUDE = 1e-3

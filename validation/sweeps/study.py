@@ -8,7 +8,6 @@ never depend on the scheduler.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import itertools
 import json
@@ -22,10 +21,17 @@ import numpy as np
 
 from cipcore.models import get_model
 from cipcore.params import ParameterError
-from cipcore.registry import check_engine_name, get_engine
+from cipcore.registry import get_engine
+from validation.cli.domains import check_key
 from validation.profiles import Profile
 from validation.regression.versions import package_versions
-from validation.sweeps.mapping import ROD_KEYS, SETTINGS, WORD_SETTINGS, point_params
+from validation.sweeps.mapping import (
+    ROD_KEYS,
+    SETTING_DOMAINS,
+    SETTINGS,
+    WORD_SETTINGS,
+    point_params,
+)
 
 METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
 #: metrics defined only for an engine with ``capabilities.rigid_body``
@@ -67,41 +73,22 @@ class Study:
     stcc: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        get_model(self.model)
+        for key, domain in STUDY_KEYS.items():  # the declared domain of every [study] key
+            if key != "compare" or self.compare:
+                setattr(self, key, check_key("", key, getattr(self, key), domain))
         self.compare = tuple(self.compare or ())
-        if self.compare:
-            if len(self.compare) != 2 or len(set(self.compare)) != 2:
-                raise ParameterError(
-                    f"compare: name two different models (reference first), got "
-                    f"{list(self.compare)!r}"
-                )
-            for m in self.compare:
-                get_model(m)
+        if self.compare and len(self.compare) != 2:
+            raise ParameterError(
+                f"compare: name two different models (reference first), got {list(self.compare)!r}"
+            )
         self.gain = _settings("gain", self.gain, GAIN_DEFAULTS)
         self.stcc = _settings("stcc", self.stcc, STCC_DEFAULTS)
-        check_engine_name(self.engine)
         rigid = get_engine(self.engine).capabilities.rigid_body
-        if isinstance(self.metrics, str):
-            self.metrics = (self.metrics,)
-        self.metrics = tuple(self.metrics)
         for m in self.metrics:
-            if m not in METRICS:
-                raise ParameterError(
-                    f"metrics: unknown metric {m!r}; allowed: {', '.join(METRICS)}"
-                )
             if m in RIGID_BODY_METRICS and not rigid:
                 raise ParameterError(
                     f"metrics: {m} needs a rigid-body engine, {self.engine!r} is not one"
                 )
-        _check_int("realizations", self.realizations, 2)
-        _check_int("decimate", self.decimate, 1)
-        _check_int("seed", self.seed, 0)
-        if (
-            isinstance(self.duration, bool)
-            or not isinstance(self.duration, int | float)
-            or not (np.isfinite(self.duration) and self.duration > 0)
-        ):
-            raise ParameterError(f"duration must be a number of seconds > 0, got {self.duration!r}")
         if not isinstance(self.grid, dict) or not self.grid:
             raise ParameterError("grid: a study needs at least one swept parameter")
         for k in [*self.fixed, *self.grid]:
@@ -159,36 +146,15 @@ class Study:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> Study:
+        """The study of a TOML file; every error one line naming the file and the key."""
         path = Path(path)
+        d = _read_toml(path)
         try:
-            d = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise ParameterError(f"study file not found: {path}") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ParameterError(f"study file {path}: cannot read ({exc})") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ParameterError(f"study file {path}: {exc}") from None
-        unknown = set(d) - set(TABLES)
-        if unknown:
-            raise ParameterError(
-                f"study file {path}: unknown table(s) {', '.join(sorted(unknown))}; "
-                f"allowed: {', '.join(f'[{t}]' for t in TABLES)}"
-            )
-        both = set(d.get("fixed", {})) & set(d.get("grid", {}))
-        if both:
-            raise ParameterError(
-                f"study file {path}: {', '.join(sorted(both))} both in [fixed] and [grid]; "
-                "a setting is fixed or swept, not both"
-            )
-        s = d.get("study", {})
-        allowed = [f.name for f in dataclasses.fields(cls) if f.name not in TABLES]
-        for k in s:
-            if k not in allowed:
-                raise ParameterError(
-                    f"study file {path}: unknown key {k!r} in [study]; allowed: "
-                    f"{', '.join(allowed)}"
-                )
-        return cls(**s, **{t: d.get(t, {}) for t in TABLES if t != "study"})
+            return cls(**d["study"], **{t: d.get(t, {}) for t in TABLES if t != "study"})
+        except ParameterError as exc:
+            text = str(exc)
+            table = "[study] " if text.split(" ", 1)[0].rstrip(":") in STUDY_KEYS else ""
+            raise ParameterError(f"study file {path}: {table}{text}") from None
 
     def _check_no_effect(self, rigid: bool) -> None:
         """Refuse, in one line, a setting that cannot change any result of this study."""
@@ -243,6 +209,51 @@ class Study:
 
 #: the tables of a study TOML file
 TABLES = ("study", "fixed", "grid", "gain", "stcc")
+#: the keys of a study's ``[study]`` table and their declared domains
+#: (:data:`validation.cli.domains.DOMAINS`: the command line's options read the same)
+STUDY_KEYS = {"name": "text", "model": "model", "engine": "engine", "metrics": "metrics",
+              "realizations": "study realizations", "duration": "duration", "seed": "seed",
+              "common_random_numbers": "switch", "decimate": "decimate",
+              "compare": "compare"}  # fmt: skip
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    """A study file's tables, checked for their names, kinds and ``[study]`` keys."""
+    try:
+        d = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ParameterError(f"study file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"study file {path}: cannot read ({exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ParameterError(f"study file {path}: {exc}") from None
+    unknown = set(d) - set(TABLES)
+    if unknown:
+        raise ParameterError(
+            f"study file {path}: unknown table(s) {', '.join(sorted(unknown))}; "
+            f"allowed: {', '.join(f'[{t}]' for t in TABLES)}"
+        )
+    for t in TABLES:
+        if t in d and not isinstance(d[t], dict):
+            raise ParameterError(f"study file {path}: [{t}] must be a table, got {d[t]!r}")
+    if "study" not in d:
+        raise ParameterError(f'study file {path}: no [study] table (it needs name = "...")')
+    both = set(d.get("fixed", {})) & set(d.get("grid", {}))
+    if both:
+        raise ParameterError(
+            f"study file {path}: {', '.join(sorted(both))} both in [fixed] and [grid]; "
+            "a setting is fixed or swept, not both"
+        )
+    for k in d["study"]:
+        if k not in STUDY_KEYS:
+            raise ParameterError(
+                f"study file {path}: unknown key {k!r} in [study]; allowed: {', '.join(STUDY_KEYS)}"
+            )
+    if "name" not in d["study"]:
+        raise ParameterError(f'study file {path}: [study] has no name (name = "...")')
+    return d
+
+
 #: settings of the rigid body alone: the reduced model has none of them
 PHYSICAL_ONLY = tuple(k for k in SETTINGS if k not in ("beta", "alpha", "gamma", "nu", "tau",
                                                         "dt", "amplitude"))  # fmt: skip
@@ -282,6 +293,8 @@ def _check_value(where: str, key: str, value: Any) -> None:
             raise ParameterError(f"{where}: expected a word, got {value!r}")
     elif isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
         raise ParameterError(f"{where}: expected a finite number, got {value!r}")
+    elif key in SETTING_DOMAINS:
+        check_key(f"{where}: ", key, value, SETTING_DOMAINS[key])
 
 
 def point_key(point: dict[str, Any]) -> str:

@@ -7,25 +7,23 @@ from pathlib import Path
 
 import numpy as np
 
-from cipcore.params import STEPPERS, BalanceParams, ParameterError
+from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 from validation.checks.divergence import lyapunov_events, summary
 from validation.cli.args import (
     EXIT_OK,
     add_engine_arg,
+    add_force_arg,
     add_json_arg,
     add_model_args,
     add_run_args,
     check_out_file,
     check_work,
     dump,
-    finite_float,
-    grid,
-    int_at_least,
     params_from_args,
-    positive_int,
 )
 from validation.cli.ci_options import progress_enabled
+from validation.cli.domains import add_option
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
@@ -44,9 +42,10 @@ def engine_options(a: argparse.Namespace, engine) -> dict:
 
 
 def add_stepper_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
+    add_option(
+        p,
         "--stepper",
-        choices=STEPPERS,
+        domain="stepper",
         default=None,
         help="reduced engine's stepper: semi-implicit (like MuJoCo Euler) or "
         "explicit Euler-Maruyama (default: semi-implicit)",
@@ -106,9 +105,7 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
     from cipcore.scenario import Execution, Scenario
     from reduced.lyapunov import critical_gain, numerical_setting
 
-    lo, hi = a.beta_range
-    if not lo < hi:
-        raise ParameterError(f"--beta-range needs LOW < HIGH (1/s^2), got {lo:g} {hi:g}")
+    lo, hi = a.beta_range  # LOW < HIGH: checked by the parser (the domain's pair)
     params = params_from_args(a, beta=lo, beta_option="--beta-range")
     params_from_args(a, beta=hi, beta_option="--beta-range")
     check_lyapunov_duration(a, params.tau, params.dt)
@@ -141,14 +138,30 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
 
 
 # -------------------------------------------------------------- stability
+#: seconds per point of the stability region (characteristic roots with 32 nodes; 16 ms
+#: measured on one core) and the most points a region plot takes without --force
+REGION_POINT_S, MAX_REGION_POINTS = 0.016, 100_000
+
+
+def check_region_work(n_betas: int, n_taus: int, force: bool) -> int:
+    """Points of the region plot; a usage error above :data:`MAX_REGION_POINTS` unless forced."""
+    points = n_betas * n_taus
+    if points > MAX_REGION_POINTS and not force:
+        raise ParameterError(
+            f"--beta-grid x --tau-grid: estimated work {points} points ({n_betas} x {n_taus}, "
+            f"about {points * REGION_POINT_S / 3600:.2g} h at {REGION_POINT_S * 1e3:g} ms a "
+            f"point) exceeds {MAX_REGION_POINTS}; lower N or pass --force"
+        )
+    return points
+
+
 def cmd_stability(a: argparse.Namespace) -> int:
     from reduced.stability import characteristic_roots, stability_region
 
-    p = BalanceParams(beta=a.beta, alpha=a.alpha, gamma=a.gamma, nu=0.0, tau=a.tau, dt=a.dt)
-    if a.tau_grid[0] <= 0:
-        raise ParameterError(f"--tau-grid: delays must be > 0 s, got LOW = {a.tau_grid[0]:g}")
+    p = params_from_args(a).with_(nu=0.0)  # the noise-free model
     if a.plot:
         check_out_file("--plot", a.plot, PLOT_SUFFIXES)
+        check_region_work(a.beta_grid[2], a.tau_grid[2], a.force)
     roots = characteristic_roots(a.model, p, n_roots=a.roots)
     out = {
         "model": a.model,
@@ -203,18 +216,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_model_args(p, beta=False)
     add_run_args(p, duration=500.0, realizations=16)
-    p.add_argument(
+    add_option(
+        p,
         "--beta-range",
-        type=finite_float,
-        nargs=2,
+        domain="beta range",
         metavar=("LOW", "HIGH"),
         required=True,
         help="gains searched (1/s^2), LOW < HIGH, required",
     )
-    p.add_argument("--target", type=finite_float, default=5e-4, help="lambda1 target (1/s)")
-    p.add_argument(
+    add_option(p, "--target", domain="target", default=5e-4, help="lambda1 target (1/s)")
+    add_option(
+        p,
         "--gains",
-        type=int_at_least(2),
+        domain="gains",
         default=7,
         help="gains evaluated over the range (count >= 2)",
     )
@@ -228,30 +242,36 @@ def register(sub: argparse._SubParsersAction) -> None:
         "model (nu = 0) and, with --plot, its stability region in (beta, tau).",
     )
     add_model_args(p)
-    p.add_argument(
+    add_option(
+        p,
         "--roots",
-        type=positive_int,
+        domain="roots",
         default=5,
         help="how many rightmost roots to print (count >= 1)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--plot",
+        domain="plot out",
         metavar="FILE.png",
         help="draw the stability region in (beta, tau) to this .png, .pdf or .svg",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--beta-grid",
-        type=grid,
+        domain="beta grid",
         default="0:80:81",
         metavar="LOW:HIGH:N",
         help="gains of the region plot (1/s^2; N >= 2 points)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--tau-grid",
-        type=grid,
+        domain="tau grid",
         default="0.01:0.3:59",
         metavar="LOW:HIGH:N",
         help="delays of the region plot (s; N >= 2 points)",
     )
+    add_force_arg(p)
     add_json_arg(p)
     p.set_defaults(func=cmd_stability)

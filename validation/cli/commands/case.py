@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from cipcore.atomic import atomic_path
 from cipcore.params import ParameterError
-from validation.cli.args import nonnegative_int
 from validation.cli.ci_options import add_ci_options
+from validation.cli.domains import add_option
 from validation.cli.exitcodes import EXIT_FAIL, EXIT_OK
 
 
@@ -26,8 +27,6 @@ def cmd_export(a: argparse.Namespace) -> int:
     from validation.cli.args import check_out_file
     from validation.exchange.case import export_case
 
-    if a.realizations < 2:
-        raise ParameterError(f"--realizations must be an integer >= 2, got {a.realizations}")
     out = check_out_file("--out", a.out, (".npz",))
     case = export_case(out, a.seed, a.realizations, model_files(a.mjcf))
     names = ", ".join(s["name"] for s in case.scenarios)
@@ -41,7 +40,8 @@ def cmd_run(a: argparse.Namespace) -> int:
 
     out = check_out_file("--out", a.out, (".npz",))
     traj = run_case(load_case(a.case), a.engine)
-    np.savez(out, **traj)
+    with atomic_path(out) as tmp, open(tmp, "wb") as f:  # a file object: no ".npz" added
+        np.savez(f, **traj)
     print(f"trajectories written: {out} (engine {a.engine})")
     return EXIT_OK
 
@@ -102,12 +102,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "steps, dt, delay, gain, noise scale, amplitude, fields to record) and every "
         "standard-normal draw, for an engine that runs the controller itself.",
     )  # fmt: skip
-    e.add_argument("--out", default="case.npz", metavar="FILE.npz", help="case file to write")
-    e.add_argument("--seed", type=nonnegative_int, default=1,
-                   help="root seed of the noise draws (integer >= 0)")  # fmt: skip
-    e.add_argument("--realizations", type=int, default=4,
-                   help="realisations per scenario (count >= 2)")  # fmt: skip
-    e.add_argument("--mjcf", action="append", metavar="PATH",
+    add_option(e, "--out", domain="npz out", default="case.npz", metavar="FILE.npz",
+               help="case file to write")  # fmt: skip
+    add_option(e, "--seed", domain="seed", default=1,
+               help="root seed of the noise draws (integer >= 0)")  # fmt: skip
+    add_option(e, "--realizations", domain="case realizations", default=4,
+               help="realisations per scenario (count >= 2)")  # fmt: skip
+    add_option(e, "--mjcf", domain="mjcf in", action="append", metavar="PATH",
                    help="a user's CIP model file instead of the shipped one")  # fmt: skip
     e.set_defaults(func=cmd_export)
     r = cs.add_parser(
@@ -116,10 +117,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "engine under the case's draws and write the trajectories an external engine "
         "should reproduce.",
     )  # fmt: skip
-    r.add_argument("--case", required=True, metavar="FILE.npz",
-                   help="case file written by `case export`")  # fmt: skip
-    r.add_argument("--engine", default="mujoco", help="a registered rigid-body engine")
-    r.add_argument("--out", default="trajectories.npz", metavar="FILE.npz",
+    add_option(r, "--case", domain="npz in", required=True, metavar="FILE.npz",
+               help="case file written by `case export`")  # fmt: skip
+    add_option(r, "--engine", domain="engine", default="mujoco",
+               help="a registered rigid-body engine")  # fmt: skip
+    add_option(r, "--out", domain="npz out", default="trajectories.npz", metavar="FILE.npz",
                    help="trajectories file to write")  # fmt: skip
     r.set_defaults(func=cmd_run)
     c = cs.add_parser(
@@ -128,11 +130,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "draws, the rod's stretch, the delay measured from the response) to the "
         "trajectories an engine wrote: exit 0 when every check passes, 1 when one fails.",
     )  # fmt: skip
-    c.add_argument("--case", required=True, metavar="FILE.npz",
-                   help="case file written by `case export`")  # fmt: skip
-    c.add_argument("--trajectories", required=True, metavar="FILE.npz",
-                   help="the engine's trajectories (<scenario>/<field> arrays)")  # fmt: skip
-    c.add_argument("--engine", default="mujoco",
+    add_option(c, "--case", domain="npz in", required=True, metavar="FILE.npz",
+               help="case file written by `case export`")  # fmt: skip
+    add_option(c, "--trajectories", domain="npz in", required=True, metavar="FILE.npz",
+               help="the engine's trajectories (<scenario>/<field> arrays)")  # fmt: skip
+    add_option(c, "--engine", domain="engine", default="mujoco",
                    help="the registered rigid-body engine whose discretisation the trajectories "
                    "follow: its measured twin and rod tolerances apply")  # fmt: skip
     c.add_argument("--json", action="store_true", help="one JSON object on stdout")

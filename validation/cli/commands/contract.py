@@ -10,6 +10,7 @@ import time
 
 from cipcore.params import EngineError, ParameterError
 from validation.cli.ci_options import add_ci_options
+from validation.cli.domains import add_option
 from validation.cli.engine_options import COMMAND_ENGINE, add_engine_cmd_arg, register_engine_cmd
 from validation.cli.exitcodes import EXIT_CRASH, EXIT_FAIL, EXIT_OK
 
@@ -72,7 +73,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run the engine contract on one engine, as an engine's own CI would: exit "
         "0 when every check passes, 1 when one fails, 4 when the engine crashes.",
     )
-    p.add_argument("--engine", help="a registered engine")
+    add_option(p, "--engine", domain="engine", help="a registered engine")
     add_engine_cmd_arg(p)
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     add_ci_options(p, verbose=False)

@@ -9,10 +9,10 @@ import sys
 
 from cip.quiet import stdout_to_stderr
 from cipcore.registry import engine_names
-from validation.cli.args import add_threads_arg, check_out_dir, check_out_file, nonnegative_int
+from validation.cli.args import add_threads_arg, check_out_dir, check_out_file
 from validation.cli.ci_options import add_ci_options, run_environment
+from validation.cli.domains import add_option
 from validation.cli.engine_options import INTEGRATORS, add_engine_cmd_arg, register_engine_cmd
-from validation.profiles import PROFILES
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
@@ -21,18 +21,16 @@ def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError
     from validation.engines import compare_engines, parse_engines, write_engine_reports
 
+    given = a.engines  # names of the registry, each once (the "engines" domain)
+    if given is not None and "all" in given and len(given) > 1:
+        raise ParameterError(f"--engines: 'all' names every engine; give it alone, got {given}")
     cmd_engine = register_engine_cmd(a.engine_cmd, a.engine_timeout)
     if cmd_engine is not None:  # the reference, MuJoCo (the speed baseline) and the command
-        names = [n for n in parse_engines(a.engines or "reduced,mujoco") if n != cmd_engine]
+        listed = given or ("reduced", "mujoco")
+        names = [n for n in parse_engines(",".join(listed)) if n != cmd_engine]
         names.append(cmd_engine)
     else:
-        names = parse_engines(a.engines)
-    if a.threads is not None and a.threads < 1:
-        raise ParameterError(f"threads must be an integer >= 1, got {a.threads}")
-    if a.integrator is not None and a.integrator not in INTEGRATORS:
-        raise ParameterError(
-            f"--integrator must be one of {', '.join(INTEGRATORS)}, got {a.integrator!r}"
-        )
+        names = parse_engines(None if given is None else ",".join(given))
     out = check_out_dir("--out", a.out)  # checked before any work
     junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
     quiet = a.json or a.quiet
@@ -94,20 +92,20 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
         "not installed here is skipped with the reason.",
     )
     registered = ", ".join(engine_names())
-    p.add_argument("--engines", metavar="A,B,...",
-                   help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
-    p.add_argument("--profile", choices=tuple(PROFILES), default="quick",
-                   help="sizes of the checks (the profiles of `cip-validate run`)")  # fmt: skip
-    p.add_argument("--seed", type=nonnegative_int, default=None,
-                   help="root seed of every noise draw (integer >= 0; default: the "
-                   "profile's)")  # fmt: skip
-    p.add_argument("--integrator", default=None, metavar="NAME",
+    add_option(p, "--engines", domain="engines", metavar="A,B,...",
+               help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
+    add_option(p, "--profile", domain="profile", default="quick",
+               help="sizes of the checks (the profiles of `cip-validate run`)")  # fmt: skip
+    add_option(p, "--seed", domain="seed", default=None,
+               help="root seed of every noise draw (integer >= 0; default: the "
+               "profile's)")  # fmt: skip
+    add_option(p, "--integrator", domain="integrator", default=None, metavar="NAME",
                    help=f"MuJoCo integrator for engines that follow the model file "
                    f"({', '.join(INTEGRATORS)}; default: the file's)")  # fmt: skip
     p.add_argument("--selftest", action="store_true",
                    help="also inject the fault catalogue into each rigid-body engine")  # fmt: skip
     add_threads_arg(p)
-    p.add_argument("--out", default="cip-engines-out", metavar="DIR",
+    add_option(p, "--out", domain="out dir", default="cip-engines-out", metavar="DIR",
                    help="output directory (created if absent; must be writable)")  # fmt: skip
     p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")

@@ -25,13 +25,11 @@ from validation.cli.args import (
     check_out_file,
     check_work,
     dump,
-    finite_float,
     params_from_args,
-    positive_float,
-    positive_int,
 )
 from validation.cli.ci_options import progress_enabled
 from validation.cli.commands.analysis import add_stepper_arg, engine_options
+from validation.cli.domains import add_option
 
 #: rod length l (m) and bob / cart mass m/M of the rigid body when not given
 DEFAULT_ROD_LENGTH, DEFAULT_MASS_RATIO = 1.0, 1e-3
@@ -52,20 +50,24 @@ def physical_from_args(a: argparse.Namespace):
 
 
 def add_physical_args(p: argparse.ArgumentParser, *, note: str = "") -> None:
-    p.add_argument(
+    add_option(
+        p,
         "--rod-length",
-        type=positive_float,
+        domain="rod length",
         default=DEFAULT_ROD_LENGTH,
         help=f"rod length l (m){note}",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--mass-ratio",
-        type=positive_float,
+        domain="mass ratio",
         default=DEFAULT_MASS_RATIO,
         help=f"bob / cart mass m/M (dimensionless){note}",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--integrator",
+        domain="integrator",
         default=None,
         metavar="NAME",
         help="MuJoCo integrator of the rigid body (Euler, implicit, implicitfast, RK4; "
@@ -198,15 +200,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_run_args(p, duration=10.0, realizations=4)
     add_engine_arg(p)
     add_stepper_arg(p)
-    p.add_argument(
-        "--amplitude", type=finite_float, default=0.01, help="initial balancing error (m)"
+    add_option(
+        p, "--amplitude", domain="amplitude", default=0.01, help="initial balancing error (m)"
     )
     add_physical_args(p, note="; rigid-body engines only")
-    p.add_argument(
-        "--decimate", type=positive_int, default=1, help="record every N-th step (count >= 1)"
+    add_option(
+        p, "--decimate", domain="decimate", default=1, help="record every N-th step (count >= 1)"
     )
-    p.add_argument(
+    add_option(
+        p,
         "--out",
+        domain="npz out",
         required=True,
         metavar="FILE.npz",
         help="output file (.npz, in a writable directory), required",

@@ -17,10 +17,9 @@ from validation.cli.args import (
     check_out_file,
     interrupt_signals,
     interrupted_status,
-    nonnegative_int,
-    positive_int,
 )
 from validation.cli.ci_options import add_ci_options, progress_enabled
+from validation.cli.domains import add_option
 from validation.cli.engine_options import add_engine_options, check_engine_options
 from validation.profiles import PROFILES
 
@@ -235,7 +234,6 @@ def cmd_baseline(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    profiles = tuple(PROFILES)
     p = sub.add_parser(
         "run",
         help="the validation suite: checks, paper table, figures, report",
@@ -243,26 +241,34 @@ def register(sub: argparse._SubParsersAction) -> None:
         "the report.  Each finished stage is saved in --out at once "
         "(results.json marked partial until the end); --resume reuses them.",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--profile",
-        choices=profiles,
+        domain="profile",
         default="quick",
         help="run size: smoke (seconds, every code path), quick (every check, "
         "minutes), paper (the paper's counts and durations), robustness (paper, plus the "
         "full grid of estimator choices)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--out",
+        domain="out dir",
         default="cip-validate-out",
         metavar="DIR",
         help="output directory (created if absent; must be writable)",
     )
-    p.add_argument(
-        "--baseline", metavar="FILE", help="results.json to compare with (regression run)"
+    add_option(
+        p,
+        "--baseline",
+        domain="json in",
+        metavar="FILE",
+        help="results.json to compare with (regression run)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--baseline-mode",
-        choices=("auto", "exact", "roundoff", "statistical"),
+        domain="baseline mode",
         default="auto",
         help="exact: every number to 1e-12 relative; roundoff: every number to 1e-9 "
         "relative + 1e-12; statistical: paired tolerances; auto (default): exact when package "
@@ -270,18 +276,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "CPU or BLAS differ, statistical when a version differs",
     )
     add_ci_options(p)
-    p.add_argument(
+    add_option(
+        p,
         "--mjcf",
+        domain="mjcf in",
         action="append",
         metavar="PATH",
         help="a user's CIP model file instead of the shipped models/cip_<model>.xml "
         "(repeat for single and coupled; the model is read from the file)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--workers",
         "--threads",
+        domain="workers",
         dest="workers",
-        type=positive_int,
         default=None,
         help="threads / processes (count >= 1; default: all cores; --threads as in "
         "`engines` and `simulate`); results do not depend on it",
@@ -293,9 +302,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--no-figures", action="store_true", help="skip the figures")
     add_engine_options(p)
-    p.add_argument(
+    add_option(
+        p,
         "--seed",
-        type=nonnegative_int,
+        domain="seed",
         default=None,
         help="root seed of every stage (integer >= 0; default: the profile's, 2011)",
     )
@@ -307,24 +317,29 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run the suite without figures (or take --from) and write "
         "the results as a regression baseline.",
     )
-    p.add_argument("--profile", choices=profiles, default="quick", help="run size")
-    p.add_argument(
+    add_option(p, "--profile", domain="profile", default="quick", help="run size")
+    add_option(
+        p,
         "--out",
+        domain="json out",
         default="baseline.json",
         metavar="FILE.json",
         help="baseline file to write (.json, in a writable directory)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--from",
+        domain="json in",
         dest="from_results",
         metavar="RESULTS.json",
         help="use an existing results.json instead of running",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--workers",
         "--threads",
+        domain="workers",
         dest="workers",
-        type=positive_int,
         default=None,
         help="threads / processes (count >= 1; default: all cores; --threads as in "
         "`engines` and `simulate`); results do not depend on it",

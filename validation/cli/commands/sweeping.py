@@ -8,7 +8,6 @@ import time
 from pathlib import Path
 
 from cipcore.atomic import WriteError
-from cipcore.models import MODEL_NAMES
 from cipcore.params import ParameterError
 from validation.cli.args import (
     EXIT_OK,
@@ -17,15 +16,11 @@ from validation.cli.args import (
     check_out_dir,
     check_out_file,
     check_work,
-    finite_float,
-    int_at_least,
     interrupt_signals,
     interrupted_status,
-    nonnegative_int,
-    positive_float,
-    positive_int,
 )
 from validation.cli.ci_options import progress_enabled
+from validation.cli.domains import add_option
 from validation.sweeps import (
     METRICS,
     Study,
@@ -37,13 +32,18 @@ from validation.sweeps import (
 )
 
 
+def study_path(text: str) -> Path:
+    """The TOML file of a study argument: a path, else a shipped study's name."""
+    path = Path(text)
+    if not path.exists() and (default_studies_dir() / f"{text}.toml").exists():
+        path = default_studies_dir() / f"{text}.toml"
+    return path
+
+
 def study_from_args(a: argparse.Namespace) -> Study:
     """The study of a TOML file or shipped study name, overridden by the options."""
     if a.study:
-        path = Path(a.study)
-        if not path.exists() and (default_studies_dir() / f"{a.study}.toml").exists():
-            path = default_studies_dir() / f"{a.study}.toml"
-        d = Study.from_toml(path).as_dict()
+        d = Study.from_toml(study_path(a.study)).as_dict()
     else:
         d = {"name": "cli"}
     cli_grid, cli_set = parse_grid(a.grid or [], "--grid"), parse_grid(a.set or [], "--set")
@@ -65,11 +65,11 @@ def study_from_args(a: argparse.Namespace) -> Study:
         if getattr(a, k) is not None:
             d[k] = getattr(a, k)
     if a.compare:
-        d["compare"] = [m.strip() for m in a.compare.split(",") if m.strip()]
+        d["compare"] = list(a.compare)
     if a.target_lambda1 is not None:
         d["gain"] = {**d.get("gain", {}), "target_lambda1": a.target_lambda1}
     if a.metrics:
-        d["metrics"] = [m.strip() for m in a.metrics.split(",") if m.strip()]
+        d["metrics"] = list(a.metrics)
     d["grid"], d["fixed"] = grid, fixed
     try:
         return Study(**d)
@@ -85,12 +85,13 @@ def study_from_args(a: argparse.Namespace) -> Study:
 
 def cmd_sweep(a: argparse.Namespace) -> int:
     study = study_from_args(a)
-    out = check_out_dir("--out", a.out or f"sweep-{study.name}")
     n_points = len(study.points())
     passes = bool(set(study.metrics) - {"lambda1"}) + ("lambda1" in study.metrics)
     dt = study.fixed.get("dt", min(study.grid.get("dt", [1e-3])))
     check_work(
-        "--duration",
+        "--duration"
+        if a.duration is not None or not a.study
+        else f"study file {a.study}: [study] duration",
         study.realizations,
         study.duration,
         float(dt),
@@ -100,13 +101,16 @@ def cmd_sweep(a: argparse.Namespace) -> int:
     if study.gain:  # every beta*: gains x realisations x duration per model and delay
         g = study.gain
         check_work(
-            "gain.duration",
+            f"study file {a.study}: [gain] duration"
+            if a.study
+            else "--target-lambda1: [gain] duration",
             g["realizations"],
             g["duration"],
             float(dt),
             runs=n_points * g["gains"],
             force=a.force,
         )
+    out = check_out_dir("--out", a.out or f"sweep-{study.name}")  # after every check
     finished = []
     t = time.perf_counter()
     with interrupt_signals() as got:
@@ -200,8 +204,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "point saved at once (rerun to resume), the directory locked while it "
         "runs, the dataset in DIR/sweep.nc and a report.",
     )
-    p.add_argument(
+    add_option(
+        p,
         "study",
+        domain="text",
         nargs="?",
         help="study TOML file, or a shipped study: "
         + ", ".join(sorted(f.stem for f in default_studies_dir().glob("*.toml"))),
@@ -213,44 +219,55 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="swept setting (repeatable; units in the README)",
     )
     p.add_argument("--set", action="append", metavar="NAME=V", help="fixed setting (repeatable)")
-    p.add_argument("--model", choices=MODEL_NAMES, help="balancing model (default: the study's)")
-    p.add_argument(
+    add_option(p, "--model", domain="model", help="balancing model (default: the study's)")
+    add_option(
+        p,
         "--compare",
+        domain="compare",
         metavar="REF,OTHER",
         help="two models run with the same seed per realisation, paired ratios and "
         "differences (e.g. single,coupled; default: the study's)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--target-lambda1",
-        type=finite_float,
+        domain="target",
         metavar="LAMBDA1",
         help="beta per point set to beta* where the reduced model's lambda1 equals this "
         "(1/s; paper: 5e-4), cached in DIR/gains",
     )
     add_engine_arg(p, default=None)
-    p.add_argument(
-        "--metrics", help="comma list from " + ",".join(METRICS) + " (default: the study's)"
+    add_option(
+        p,
+        "--metrics",
+        domain="metrics",
+        help="comma list from " + ",".join(METRICS) + " (default: the study's)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--realizations",
-        type=int_at_least(2),
+        domain="study realizations",
         help="realisations per point (count >= 2; default: the study's)",
     )
-    p.add_argument(
+    add_option(
+        p,
         "--duration",
-        type=positive_float,
+        domain="duration",
         help="simulated time per realisation (s; default: the study's)",
     )
-    p.add_argument("--seed", type=nonnegative_int, help="study seed (default: the study's)")
-    p.add_argument("--out", metavar="DIR", help="sweep directory (default: sweep-NAME)")
-    p.add_argument(
+    add_option(p, "--seed", domain="seed", help="study seed (default: the study's)")
+    add_option(p, "--out", domain="out dir", metavar="DIR",
+               help="sweep directory (default: sweep-NAME)")  # fmt: skip
+    add_option(
+        p,
         "--workers",
-        type=positive_int,
+        domain="workers",
         default=None,
         help="local processes (count >= 1; default: chosen by the work: one per core "
         "unless the points are cheaper than starting the processes, then this process)",
     )
-    p.add_argument("--scheduler", metavar="ADDRESS", help="Dask scheduler, e.g. tcp://host:8786")
+    add_option(p, "--scheduler", domain="address", metavar="ADDRESS",
+               help="Dask scheduler, e.g. tcp://host:8786")  # fmt: skip
     p.add_argument(
         "--wait",
         action="store_true",
@@ -266,10 +283,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "realisations with its percentile-bootstrap 95 % band (a per-point quantity such as "
         "rms_ratio_median with its stored interval); axes labelled with units.",
     )
-    p.add_argument("dataset", help="sweep directory or sweep.nc")
-    p.add_argument("--metric", required=True, help="a variable of the dataset, required")
-    p.add_argument("--x", required=True, help="the swept parameter on the x axis, required")
-    p.add_argument("--out", metavar="FILE.png", help="figure file (default: METRIC_vs_X.png)")
+    add_option(p, "dataset", domain="dataset", help="sweep directory or sweep.nc")
+    add_option(p, "--metric", domain="text", required=True,
+               help="a variable of the dataset, required")  # fmt: skip
+    add_option(p, "--x", domain="text", required=True,
+               help="the swept parameter on the x axis, required")  # fmt: skip
+    add_option(p, "--out", domain="plot out", metavar="FILE.png",
+               help="figure file (default: METRIC_vs_X.png)")  # fmt: skip
     p.set_defaults(func=cmd_sweep_plot)
 
     p = sub.add_parser(
@@ -278,6 +298,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="The sweep dataset as a CSV table: one row per grid point and "
         "realisation, per-point quantities repeated; column names carry the units.",
     )
-    p.add_argument("dataset", help="sweep directory or sweep.nc")
-    p.add_argument("--csv", required=True, metavar="FILE.csv", help="CSV file to write, required")
+    add_option(p, "dataset", domain="dataset", help="sweep directory or sweep.nc")
+    add_option(p, "--csv", domain="csv out", required=True, metavar="FILE.csv",
+               help="CSV file to write, required")  # fmt: skip
     p.set_defaults(func=cmd_sweep_export)

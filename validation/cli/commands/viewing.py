@@ -12,33 +12,32 @@ from cipcore.registry import get_engine
 from validation.cli.args import (
     EXIT_OK,
     add_engine_arg,
+    add_force_arg,
     add_model_args,
     check_out_file,
     check_work,
-    finite_float,
-    nonnegative_int,
     params_from_args,
-    positive_float,
-    positive_int,
 )
 from validation.cli.ci_options import progress_enabled
 from validation.cli.commands.analysis import add_stepper_arg, engine_options
 from validation.cli.commands.simulation import add_physical_args, physical_from_args
+from validation.cli.domains import add_option
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
     add_model_args(p)
     add_engine_arg(p, default="mujoco")
     add_stepper_arg(p)
-    p.add_argument("--duration", type=positive_float, default=10.0, help="simulated time (s)")
-    p.add_argument("--seed", type=nonnegative_int, default=0,
-                   help="root seed (the same draws as every other command)")  # fmt: skip
-    p.add_argument("--realization", type=nonnegative_int, default=0,
-                   help="which realisation of the seed to show (index >= 0)")  # fmt: skip
-    p.add_argument("--amplitude", type=finite_float, default=0.01,
-                   help="initial balancing error (m)")  # fmt: skip
+    add_option(p, "--duration", domain="duration", default=10.0, help="simulated time (s)")
+    add_option(p, "--seed", domain="seed", default=0,
+               help="root seed (the same draws as every other command)")  # fmt: skip
+    add_option(p, "--realization", domain="realization", default=0,
+               help="which realisation of the seed to show (index >= 0)")  # fmt: skip
+    add_option(p, "--amplitude", domain="amplitude", default=0.01,
+               help="initial balancing error (m)")  # fmt: skip
     add_physical_args(p, note="; the rigid body drawn (and simulated by rigid-body engines)")
-    p.add_argument("--fps", type=positive_float, default=30.0, help="frames per second (1/s)")
+    add_option(p, "--fps", domain="fps", default=30.0, help="frames per second (1/s)")
+    add_force_arg(p)
 
 
 def _simulate(a: argparse.Namespace):
@@ -55,24 +54,20 @@ def _simulate(a: argparse.Namespace):
         kw["physical"] = phys
     decimate = max(1, round(1.0 / (a.fps * params.dt)))
     n = a.realization + 1  # realisation r draws the same noise whatever the count
-    check_work("--duration", n, a.duration, params.dt)
+    check_work("--duration", n, a.duration, params.dt, force=a.force)
     tr = engine.simulate(a.model, params, a.duration, n, a.seed, amplitude=a.amplitude,
                          decimate=decimate, progress=progress_enabled(), **kw)  # fmt: skip
     length = pendulum_length(params)
     return tr, build(a.model, phys), joint_positions(tr, length, a.realization), decimate
 
 
-#: largest frame side (pixels) and memory of all frames (bytes) a render may ask for
-MAX_SIDE, MAX_FRAME_BYTES = 4096, 2 * 1024**3
+#: memory of all frames (bytes) a render may ask for (a frame's side: the "pixels" domain)
+MAX_FRAME_BYTES = 2 * 1024**3
 
 
 def check_frames(a: argparse.Namespace, pixels: bool = True) -> None:
     """Before any work: the frames' memory (frames x width x height x 3 bytes with
     ``pixels``, else the recorded run's: frames x realisations x 8 fields x 8 bytes)."""
-    if pixels:
-        for option, value in (("--width", a.width), ("--height", a.height)):
-            if value > MAX_SIDE:
-                raise ParameterError(f"{option} must be in [1, {MAX_SIDE}] pixels, got {value}")
     step = max(1, round(1.0 / (a.fps * a.dt))) * a.dt  # s between frames (whole steps)
     frames = a.duration / step + 1
     size = a.width * a.height * 3 if pixels else (a.realization + 1) * 64
@@ -159,9 +154,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "as the other commands) and draw it on the rigid-body model with "
                        "MuJoCo's offscreen renderer (MUJOCO_GL=egl or osmesa).")  # fmt: skip
     _add_run_args(p)
-    p.add_argument("--width", type=positive_int, default=480, help="frame width (pixels)")
-    p.add_argument("--height", type=positive_int, default=320, help="frame height (pixels)")
-    p.add_argument("--out", required=True, metavar="FILE.gif",
+    add_option(p, "--width", domain="pixels", default=480, help="frame width (pixels)")
+    add_option(p, "--height", domain="pixels", default=320, help="frame height (pixels)")
+    add_option(p, "--out", domain="video out", required=True, metavar="FILE.gif",
                    help="video file (.gif, or .mp4 with ffmpeg), required")  # fmt: skip
     p.set_defaults(func=cmd_render)
 
