@@ -59,6 +59,9 @@ def simulate_full(
     ``body`` says which rigid body is stepped, with what (:class:`cip.runner.RigidBody`:
     the physical parameters, the backend, the engine's name, a compiled model file);
     ``controller`` replaces the paper's delayed random-gain feedback (e.g. PD).
+
+    The function is long because the chunk callback (recording, the small-angle watch, the
+    divergence stop) shares the run's arrays by closure.
     """
     model, params, amplitude = scenario.model, scenario.params, scenario.amplitude
     decimate, threads, mj_model, backend = (

@@ -49,7 +49,11 @@ _KERNEL: dict[str, Any] = {}
 
 
 def _kernel():
-    """The warp kernel, built on first use (warp is an optional dependency)."""
+    """The warp kernel, built on first use (warp is an optional dependency).
+
+    It is long because the warp kernel must be one function: device code cannot call back
+    into Python.
+    """
     if "k" in _KERNEL:
         return _KERNEL["k"]
     import warp as wp

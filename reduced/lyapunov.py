@@ -86,6 +86,9 @@ def lyapunov_gains(
     step ``dt`` and the delay ``tau`` (s).  ``scenario`` gives the model, duration,
     realisations and seed (its ``params`` are not used: ``params_seq`` replaces
     them); the other arguments as :func:`lyapunov`.
+
+    The function is long because the parameter sets' checks, the tangent start and the
+    Benettin accumulation share the run's arrays by closure.
     """
     model, duration = scenario.model, scenario.duration
     seed, n_realizations = scenario.seed, scenario.realizations

@@ -211,6 +211,9 @@ def compare_series(
     also checked against the twin (:func:`validation.checks.stats.paired_shift`).
     ``me`` are the envelope twin's (:func:`validation.checks.conformance.envelope_twin_terms`):
     the known terms enter a margin only up to theirs.
+
+    The function is long because it is the table of the series checks, one entry per metric,
+    each with its rule said in place.
     """
     from validation.checks.conformance import BOUNDED_RULE, bounded_margin
 
@@ -487,6 +490,9 @@ def amplitude_scan(
     the regime while the reference stays inside (a joint limit, a contact) is
     listed and fails ``agreement.small_angle_regime``.  The margins' known terms
     are bounded by the envelope twin (:mod:`validation.checks.conformance`).
+
+    The function is long because each amplitude's row and its verdicts are built from the
+    same four runs.
     """
     from validation.checks.conformance import bounded_margin, run_envelope_twin
     from validation.checks.divergence import pendulum_length
@@ -621,6 +627,9 @@ def rod_length_study(
     are compared with those at l = L by the paired-equivalence rule.  The rows
     report every metric per (l/L, amplitude); beyond the linear regime the
     rigid rod's geometry is free to matter, and the rows show where it does.
+
+    The function is long because it maps the study's result onto the checks and the figure's
+    data in one place.
     """
     import json
     import os
@@ -800,6 +809,9 @@ def instrument_checks(
     backend), the MuJoCo integrator run instead of the file's and the user's model
     files (default: the shipped files); ``fault`` a
     :class:`validation.faults.catalogue.Fault` injected into the engine only.
+
+    The function is long because the direct checks share one run per model (the engine, its
+    twin, the delay probe) and are built together.
     """
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin

@@ -99,6 +99,8 @@ def spec_items(m: mujoco.MjModel, mapping, params: BalanceParams) -> dict[str, d
 
     ``mapping`` is the file's :class:`cip.mjcf_params.ModelMapping`, ``params``
     the controller's (alpha, gamma, dt).
+
+    The function is long because it is the specification's table, one item per clause.
     """
     nc = mapping.n_controllers
     c = physical_content(m, nc)

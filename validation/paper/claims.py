@@ -614,7 +614,11 @@ def rms_and_velocity(profile: Profile, threads: int | None) -> tuple[list[dict],
 
 def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict], dict]:
     """Coupling-induced sensitivity (section 3.3), spectra (section 3.1) and the experiment's
-    claims (section 4), one row each."""
+    claims (section 4), one row each.
+
+    The function is long because the STCC peaks and the spectra share the simulations of one
+    batch loop.
+    """
     g = _default_grid(profile)
     rows, data = [], {}
     sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}

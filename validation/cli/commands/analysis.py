@@ -194,6 +194,10 @@ def cmd_stability(a: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------ parser
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the commands to the parser. The function is long because it declares every option of
+    its commands, one call each.
+    """
+
     p = sub.add_parser(
         "lyapunov",
         help="largest Lyapunov exponent lambda1 (mean, 95 %% CI)",

@@ -51,6 +51,10 @@ def _quiet_say(text: str) -> None:
 
 
 def cmd_run(a: argparse.Namespace) -> int:
+    """The function is long because it turns every way a run can end into its exit code and one
+    message.
+    """
+
     from cip.mjcf_params import model_files
     from cipcore.scenario import EngineTarget
     from validation.cli.checklog import regression_log
@@ -234,6 +238,10 @@ def cmd_baseline(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the commands to the parser. The function is long because it declares every option of
+    its commands, one call each.
+    """
+
     p = sub.add_parser(
         "run",
         help="the validation suite: checks, paper table, figures, report",

@@ -197,6 +197,10 @@ def cmd_sweep_export(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the commands to the parser. The function is long because it declares every option of
+    its commands, one call each.
+    """
+
     p = sub.add_parser(
         "sweep",
         help="parameter study over a grid (resumable; local or Dask)",
