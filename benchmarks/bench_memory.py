@@ -15,6 +15,7 @@ import time
 
 import numpy as np
 
+from cipcore.scenario import Recording, Scenario
 from reduced import BalanceParams, simulate
 
 
@@ -24,8 +25,10 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=1200.0)
     a = ap.parse_args()
     t = time.perf_counter()
-    tr = simulate("coupled", BalanceParams(beta=21.032), a.duration, a.realizations, seed=1,
-                  fields=("balancing_error",), dtype=np.float32)  # fmt: skip
+    tr = simulate(
+        Scenario("coupled", BalanceParams(beta=21.032), a.duration, a.realizations, 1),
+        recording=Recording(fields=("balancing_error",), dtype=np.float32),
+    )
     el = time.perf_counter() - t
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB -> GiB
     e = tr["balancing_error"]

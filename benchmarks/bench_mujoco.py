@@ -32,6 +32,7 @@ from cip.mjstages import unused_stage_flags
 from cip.mjtimer import timers_off
 from cip.model import CIPParams, build
 from cip.simulate import simulate_full
+from cipcore.scenario import Execution, Recording, Scenario
 from reduced import BalanceParams
 
 
@@ -115,8 +116,11 @@ def timer_cost(p: BalanceParams, nreal: int, nstep: int, repeats: int) -> None:
 
 def ours(p: BalanceParams, nreal: int, duration: float, threads: int) -> float:
     t = time.perf_counter()
-    simulate_full("coupled", p, duration, nreal, seed=0, amplitude=1e-3, threads=threads,
-                  fields=("balancing_error",), dtype=np.float32)  # fmt: skip
+    simulate_full(
+        Scenario("coupled", p, duration, nreal, 0, amplitude=1e-3),
+        recording=Recording(fields=("balancing_error",), dtype=np.float32),
+        execution=Execution(threads=threads),
+    )
     return time.perf_counter() - t
 
 

@@ -12,6 +12,7 @@ import argparse
 import time
 
 from cipcore.driver import run_blocks
+from cipcore.scenario import Execution, Scenario
 from reduced import BalanceParams, GainNoise, lyapunov
 
 
@@ -25,14 +26,19 @@ def main() -> None:
     p = BalanceParams(beta=21.032)
     n_steps = round(a.duration / p.dt)
     total = n_steps * a.realizations
-    lyapunov("coupled", p, 1.0, 2, threads=a.threads)  # compile / load the cache
+    lyapunov(
+        Scenario("coupled", p, 1.0, 2), execution=Execution(threads=a.threads)
+    )  # compile / load the cache
 
     def draws_only() -> None:
         noise = GainNoise(0, a.realizations, 2)
         run_blocks(noise, n_steps, lambda block, xi, n0: None, threads=a.threads)
 
     def model() -> None:
-        lyapunov("coupled", p, a.duration, a.realizations, threads=a.threads)
+        lyapunov(
+            Scenario("coupled", p, a.duration, a.realizations),
+            execution=Execution(threads=a.threads),
+        )
 
     best = {}
     for name, fn in (("gaussian draws only", draws_only), ("coupled lyapunov", model)):

@@ -13,7 +13,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from validation.sweep import Study, run_sweep
+from validation.sweep import Study, SweepPool, run_sweep
 
 
 def main() -> None:
@@ -24,11 +24,11 @@ def main() -> None:
     study = Study(name="bench", model="coupled", engine="mujoco", metrics=("rms", "max_angle"),
                   realizations=8, duration=a.duration, seed=1,
                   grid={"rod_length_ratio": [0.5 + 0.25 * k for k in range(a.points)]})  # fmt: skip
-    run_sweep(study, Path(tempfile.mkdtemp()), workers=1)  # warm the numba cache
+    run_sweep(study, Path(tempfile.mkdtemp()), pool=SweepPool(workers=1))  # warm the numba cache
     rows = []
     for workers in (1, 2):
         t = time.perf_counter()
-        run_sweep(study, Path(tempfile.mkdtemp()), workers=workers)
+        run_sweep(study, Path(tempfile.mkdtemp()), pool=SweepPool(workers=workers))
         rows.append((f"local, {workers} worker(s)", time.perf_counter() - t))
     from dask.distributed import LocalCluster
 
@@ -36,7 +36,9 @@ def main() -> None:
         t = time.perf_counter()
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                           dashboard_address=None) as cluster:  # fmt: skip
-            run_sweep(study, Path(tempfile.mkdtemp()), scheduler=cluster.scheduler_address)
+            run_sweep(
+                study, Path(tempfile.mkdtemp()), pool=SweepPool(scheduler=cluster.scheduler_address)
+            )
         rows.append((f"dask LocalCluster, {workers} worker(s)", time.perf_counter() - t))
     steps = a.points * 8 * round(a.duration / 1e-3)
     print(f"sweep of {a.points} points x 8 realisations x {a.duration:g} s (coupled MuJoCo CIP)")

@@ -21,9 +21,11 @@ import json
 import numpy as np
 
 from cip.model import CIPParams
+from cip.runner import RigidBody
 from cip.simulate import simulate_full
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
+from cipcore.scenario import Execution, Scenario
 from validation.checks.metrics import relative_l2
 from validation.faults.catalogue import make_fault
 from validation.profiles import PAPER_BETA
@@ -56,8 +58,11 @@ def run(name: str, model: str, seed: int, n: int, mass_ratio: float, late: bool)
     backend = get_engine(name).backend()
     if late:
         backend = late_backend(backend)
-    tr = simulate_full(model, p, max(WINDOWS), n, seed, amplitude=1e-6, physical=phys,
-                       backend=backend, engine_name=name, threads=1)  # fmt: skip
+    tr = simulate_full(
+        Scenario(model, p, max(WINDOWS), n, seed, amplitude=1e-6),
+        body=RigidBody(physical=phys, backend=backend, name=name),
+        execution=Execution(threads=1),
+    )
     return tr["balancing_error"]
 
 

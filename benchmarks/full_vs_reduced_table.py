@@ -13,7 +13,9 @@ from __future__ import annotations
 import numpy as np
 
 from cip.model import CIPParams
+from cip.runner import RigidBody
 from cip.simulate import simulate_full
+from cipcore.scenario import Scenario
 from reduced import BalanceParams, simulate
 
 MASS_RATIOS = (1e-3, 1e-4, 1e-5)
@@ -26,11 +28,13 @@ def main() -> None:
     print("|---" * (3 + len(MASS_RATIOS)) + "|")
     for model in ("single", "coupled"):
         for amp in (1e-6, 1e-3, 1e-2, 3e-2):
-            red = simulate(model, p, 10.0, 4, seed=1, amplitude=amp)["balancing_error"]
+            red = simulate(Scenario(model, p, 10.0, 4, 1, amplitude=amp))["balancing_error"]
             row = []
             for mr in MASS_RATIOS:
-                full = simulate_full(model, p, 10.0, 4, seed=1, amplitude=amp,
-                                     physical=CIPParams.from_reduced(p, mass_ratio=mr))  # fmt: skip
+                full = simulate_full(
+                    Scenario(model, p, 10.0, 4, 1, amplitude=amp),
+                    body=RigidBody(physical=CIPParams.from_reduced(p, mass_ratio=mr)),
+                )
                 row.append(np.linalg.norm(full["balancing_error"] - red) / np.linalg.norm(red))
             angle = max(full.attrs["max_abs_angle"])
             print(f"| {model} | {amp:g} | " + " | ".join(f"{v:.2e}" for v in row)

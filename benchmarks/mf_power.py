@@ -34,6 +34,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from cipcore.params import BalanceParams
+from cipcore.scenario import EngineTarget, Scenario
+
 
 def half_width(check: dict) -> float:
     """The interval a check decides on (module docstring), NaN where it has none."""
@@ -53,10 +56,12 @@ def run_once(profile, engine: str, threads: int) -> tuple[list, float, float, in
 
     checks, steps, t0, c0 = [], 0, time.perf_counter(), time.process_time()
     for model, beta in PAPER_BETA.items():
-        args = (model, beta, profile.amplitude, profile.series_duration,
-                profile.series_realizations, profile.seed_for("series", model), profile.decimate,
-                threads, None, engine, None)  # fmt: skip
-        got, data = agreement.series_model_checks(args, profile, None, "float64")
+        scn = Scenario(model, BalanceParams(beta=beta), profile.series_duration,
+                       profile.series_realizations, profile.seed_for("series", model),
+                       profile.amplitude)  # fmt: skip
+        got, data = agreement.series_model_checks(
+            scn, EngineTarget(engine), profile, threads=threads, nearest=None, precision="float64"
+        )
         checks += [c.as_dict() for c in got if c.name.startswith("agreement.")]
         full = data["full"]
         steps += full.shape[0] * round(profile.series_duration / full.attrs["dt"])
@@ -73,14 +78,14 @@ def with_fault(kind: str, size: float):
 
     fault = make_fault(kind, size)
 
-    def run_full(model, beta, amplitude, duration, n, seed, decimate, threads, files=None,
-                 engine="mujoco", integrator=None):  # fmt: skip
-        eng = agreement.rigid_engine(engine)
-        m = agreement.model_file(model, files, integrator)
-        p = fault.engine_params(agreement.BalanceParams(beta=beta))
-        return eng.simulate(model, p, duration, n, seed, physical=read_mapping(m).physical(),
+    def run_full(scenario, target, *, decimate, threads):
+        eng = agreement.rigid_engine(target.engine)
+        m = agreement.model_file(scenario.model, target.files, target.integrator)
+        p = fault.engine_params(scenario.params)
+        return eng.simulate(scenario.model, p, scenario.duration, scenario.realizations,
+                            scenario.seed, physical=read_mapping(m).physical(),
                             fields=(*agreement.SERIES_FIELDS, "angle"), mj_model=m,
-                            backend=fault.backend(eng.rollout()), amplitude=amplitude,
+                            backend=fault.backend(eng.rollout()), amplitude=scenario.amplitude,
                             decimate=decimate, threads=threads)  # fmt: skip
 
     return run_full

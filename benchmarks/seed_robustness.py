@@ -23,7 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from validation.profiles import PROFILES
-from validation.run import run_validation
+from validation.run import RunSetting, run_validation
 
 DEFAULT = {"smoke": 20, "quick": 5}
 
@@ -44,13 +44,9 @@ def run_seeds(profile: str, seeds: list[int], workers: int | None) -> dict:
     for seed in seeds:
         t = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
-            res = run_validation(
-                replace(PROFILES[profile], seed=seed),
-                Path(tmp),
-                workers=workers,
-                progress=False,
-                figures=False,
-            )
+            setting = RunSetting(replace(PROFILES[profile], seed=seed), workers=workers,
+                                 figures=False, progress=False)  # fmt: skip
+            res = run_validation(setting, Path(tmp))
         bad = [c["name"] for c in res["checks"] if c["status"] == "fail"]
         inc = [c["name"] for c in res["checks"] if c["status"] == "inconclusive"]
         names.update(c["name"] for c in res["checks"])

@@ -24,6 +24,7 @@ import numpy as np
 
 from cip.mjcf_params import read_mapping
 from cipcore.registry import availability
+from cipcore.scenario import Recording, Scenario
 from reduced import BalanceParams, simulate
 from reduced.twin import TwinParams, simulate_twin
 from validation.checks.agreement import model_file, rigid_engine
@@ -61,8 +62,9 @@ def main() -> None:
                     args = (a.duration, a.realizations, a.seed)
                     full = eng.simulate(model, p, *args, physical=mp.physical(), mj_model=m,
                                         fields=(*f, "angle"), amplitude=amp)  # fmt: skip
-                    twin = simulate_twin(model, p, tw, *args, amplitude=amp, fields=f)
-                    er = simulate(model, p, *args, amplitude=amp, fields=f)["balancing_error"]
+                    scn = Scenario(model, p, *args, amplitude=amp)
+                    twin = simulate_twin(scn, tw, recording=Recording(fields=f))
+                    er = simulate(scn, recording=Recording(fields=f))["balancing_error"]
                     ef, et = full["balancing_error"], twin["balancing_error"]
                     rod = ratio = float("nan")
                     if mp.n_controllers == 2:

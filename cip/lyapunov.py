@@ -20,12 +20,13 @@ from __future__ import annotations
 import numpy as np
 
 from cip.model import CIPParams
-from cip.runner import CIPRunner, RolloutBackend
+from cip.runner import CIPRunner, RigidBody, RolloutBackend
 from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import GainNoise
 from cipcore.params import BalanceParams, ParameterError, check_count, whole_steps
 from cipcore.results import LyapunovResult, check_transient
+from cipcore.scenario import Execution, Scenario
 from cipcore.schema import check_duration
 from cipcore.seeds import tangent_rng
 from cipcore.stats import mean_ci95
@@ -83,37 +84,33 @@ class _Renormaliser:
 
 
 def lyapunov_full(
-    model: str,
-    params: BalanceParams,
-    duration: float = 100.0,
-    n_realizations: int = 8,
-    seed: int = 0,
+    scenario: Scenario,
     *,
-    physical: CIPParams | None = None,
+    body: RigidBody = RigidBody(),
     epsilon: float = 1e-7,
     transient: float | None = None,
-    threads: int | None = None,
-    progress: bool = False,
-    backend: type[RolloutBackend] | None = None,
-    mj_model: object = None,
+    execution: Execution = Execution(),
 ) -> LyapunovResult:
     """Largest Lyapunov exponent (1/s) of the MuJoCo CIP about upright.
 
-    Same noise draws as :func:`reduced.lyapunov.lyapunov` for the same seed
-    (the initial deviation differs: here it is a random small tilt).
-    ``epsilon`` (m) is the deviation size kept by renormalisation: small
-    enough for the linear regime (theta ~ epsilon / L).  ``mj_model``: a
-    compiled model file to run instead of :func:`cip.model.build`'s (as in
-    :func:`cip.simulate.simulate_full`).
+    Same noise draws as :func:`reduced.lyapunov.lyapunov` for the same scenario
+    (the initial deviation differs: here it is a random small tilt; the
+    scenario's amplitude is not used).  ``epsilon`` (m) is the deviation size kept
+    by renormalisation: small enough for the linear regime (theta ~ epsilon / L).
+    ``body`` as in :func:`cip.simulate.simulate_full`; ``transient`` (s) is
+    discarded at the start (default min(10 s, duration / 10)).
     """
+    model, params, seed = scenario.model, scenario.params, scenario.seed
+    threads, backend, mj_model = execution.threads, body.backend, body.mj_model
+    n_realizations = scenario.realizations
     nc = get_model(model).n_controllers
-    duration = check_duration(duration)
+    duration = check_duration(scenario.duration)
     n_steps = whole_steps("duration", duration, params.dt)
     transient = check_transient(transient, duration)
     if not (0 < epsilon < 1e-3):
         raise ParameterError(f"epsilon must be in (0, 1e-3) m, got {epsilon}")
     n_realizations = check_count("realizations", n_realizations)
-    physical = physical or CIPParams.from_reduced(params)
+    physical = body.physical or CIPParams.from_reduced(params)
     noise = GainNoise(seed, n_realizations, nc)
     transient_steps = round(transient / params.dt)
     logsum = np.zeros(n_realizations)
@@ -139,7 +136,7 @@ def lyapunov_full(
         renorm.rescale(r, epsilon / norm)
 
     run_blocks(noise, n_steps, work, threads=threads, chunk_steps=d,
-               progress=progress and "mujoco lyapunov")  # fmt: skip
+               progress=execution.progress and "mujoco lyapunov")  # fmt: skip
     per = logsum / ((n_steps - start) * params.dt)
     mean, ci = mean_ci95(per)
     return LyapunovResult(

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import copy
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import mujoco
@@ -114,6 +114,26 @@ class MujocoRollout:
     def warnings(self) -> int:
         """Number of MuJoCo warnings (bad qacc, instability) raised in the worker data."""
         return sum(int(d.warning[w].number) for d in self.datas for w in range(len(d.warning)))
+
+
+@dataclass(frozen=True)
+class RigidBody:
+    """Which rigid body a simulation steps, and with what.
+
+    Attributes
+    ----------
+    physical : the rigid body's parameters (default: :meth:`CIPParams.from_reduced`
+        of the scenario's parameters: L = g/alpha, m/M = 1e-3).
+    backend : the stepper (default :class:`MujocoRollout`, MuJoCo on the CPU).
+    name : the engine's name, recorded in the trajectory's ``attrs["engine"]``.
+    mj_model : a compiled model file to run instead of :func:`cip.model.build`'s
+        (``physical`` must then describe it, see :func:`cip.mjcf_params.read_mapping`).
+    """
+
+    physical: CIPParams | None = None
+    backend: type[RolloutBackend] | None = None
+    name: str = "mujoco"
+    mj_model: object = field(default=None, compare=False)
 
 
 class CIPRunner:

@@ -22,13 +22,13 @@ import warnings
 import numpy as np
 
 from cip.model import CIPParams, small_angle_limit
-from cip.runner import CIPRunner, Controller, RolloutBackend
+from cip.runner import CIPRunner, Controller, RigidBody
 from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import ArrayNoise, GainNoise, make_noise
-from cipcore.params import BalanceParams, whole_steps
+from cipcore.params import whole_steps
+from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import (
-    DEFAULT_MAX_BYTES,
     UNITS,
     Trajectory,
     check_amplitude,
@@ -44,46 +44,41 @@ class DivergenceWarning(RuntimeWarning):
 
 
 def simulate_full(
-    model: str,
-    params: BalanceParams,
-    duration: float,
-    n_realizations: int = 1,
-    seed: int = 0,
+    scenario: Scenario,
     *,
-    amplitude: float = 0.01,
-    physical: CIPParams | None = None,
+    body: RigidBody = RigidBody(),
     controller: Controller | None = None,
-    decimate: int = 1,
-    fields: tuple[str, ...] = FULL_FIELDS,
-    dtype: type | np.dtype = np.float64,
     noise: GainNoise | ArrayNoise | None = None,
-    threads: int | None = None,
-    max_bytes: int = DEFAULT_MAX_BYTES,
-    progress: bool = False,
-    backend: type[RolloutBackend] | None = None,
-    engine_name: str = "mujoco",
-    mj_model: object = None,
+    recording: Recording = Recording(),
+    execution: Execution = Execution(),
 ) -> Trajectory:
     """Simulate the full CIP in MuJoCo (see the module docstring).
 
-    Parameters as :func:`reduced.simulate.simulate`; ``physical`` defaults to
-    :meth:`CIPParams.from_reduced` of ``params`` (L = g/alpha, m/M = 1e-3).
-    ``backend`` steps the rigid body (default :class:`cip.runner.MujocoRollout`,
-    MuJoCo on the CPU); ``engine_name`` is recorded in ``attrs["engine"]``;
-    ``mj_model`` a compiled model file to run instead of :func:`cip.model.build`'s
-    (``physical`` must then describe it, see :func:`cip.mjcf_params.read_mapping`).
+    ``scenario``, ``noise``, ``recording`` and ``execution`` as
+    :func:`reduced.simulate.simulate` (the fields: :data:`FULL_FIELDS`, default all);
+    ``body`` says which rigid body is stepped, with what (:class:`cip.runner.RigidBody`:
+    the physical parameters, the backend, the engine's name, a compiled model file);
+    ``controller`` replaces the paper's delayed random-gain feedback (e.g. PD).
+
+    The function is long because the chunk callback (recording, the small-angle watch, the
+    divergence stop) shares the run's arrays by closure.
     """
+    model, params, amplitude = scenario.model, scenario.params, scenario.amplitude
+    decimate, threads, mj_model, backend = (
+        recording.decimate,
+        execution.threads,
+        body.mj_model,
+        body.backend,
+    )
     nc = get_model(model).n_controllers
-    duration = check_duration(duration)
+    duration = check_duration(scenario.duration)
     n_steps = whole_steps("duration", duration, params.dt)
     amplitude = check_amplitude(amplitude)
-    physical = physical or CIPParams.from_reduced(params)
-    noise = make_noise(noise, seed, n_realizations, nc)
+    physical = body.physical or CIPParams.from_reduced(params)
+    noise = make_noise(noise, scenario.seed, scenario.realizations, nc)
     nreal = noise.n_realizations
-    n_samples = plan_recording(
-        n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes, allowed=FULL_FIELDS
-    )
-    out = {f: np.empty((nreal, n_samples, nc), dtype=dtype) for f in fields}
+    n_samples, fields = plan_recording(n_steps, nreal, nc, recording, allowed=FULL_FIELDS)
+    out = {f: np.empty((nreal, n_samples, nc), dtype=recording.dtype) for f in fields}
     max_angle = np.zeros(nreal)
     recorded = np.zeros(nreal, dtype=int)
     # each block's runner is built here, in this thread, before the driver's threads
@@ -132,7 +127,7 @@ def simulate_full(
         return False
 
     run_blocks(noise, n_steps, work, threads=threads, chunk_steps=params.delay_steps,
-               progress=progress and "mujoco")  # fmt: skip
+               progress=execution.progress and "mujoco")  # fmt: skip
     first = min(diverged, key=lambda d: d["time_window"][0]) if diverged else None
     # every realisation has its samples up to the stop, whatever the thread timing
     n_rec = -(-stop[0] // decimate) if first else n_samples
@@ -147,7 +142,7 @@ def simulate_full(
         )
     limit = small_angle_limit()
     attrs = {
-        "engine": engine_name,
+        "engine": body.name,
         "model": model,
         "stepper": physical.integrator,
         "seed": noise.seed,

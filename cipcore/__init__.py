@@ -9,6 +9,8 @@ module          job
 ==============  ==============================================================
 params          reduced-model parameters (alpha, beta, gamma, nu, tau, dt),
                 paper constants, input checks (:class:`ParameterError`)
+scenario        a simulation's setting as one value (:class:`Scenario`), what
+                is recorded, how the work is spread, the engine under test
 models          the balancing models as values (single, coupled, ...)
 noise           the random feedback gain R = 1 + nu xi / sqrt(dt), one seeded
                 stream per realisation

@@ -19,8 +19,7 @@ entry in :data:`cipcore.registry.ENGINES` (or a ``cipval.engines`` entry point).
 
 from __future__ import annotations
 
-import inspect
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol, TypedDict, Unpack, runtime_checkable
 
@@ -138,14 +137,6 @@ class LyapunovOptions(TypedDict, total=False):
     mj_model: Any
     backend: Any
     stepper: str
-
-
-def keyword_options(fn: Callable[..., Any], exclude: Iterable[str] = ()) -> frozenset[str]:
-    """The keyword-only parameters of ``fn`` (the options an engine method passes on to
-    it), less ``exclude`` (those the engine sets itself)."""
-    kinds = (inspect.Parameter.KEYWORD_ONLY,)
-    params = inspect.signature(fn).parameters.values()
-    return frozenset(p.name for p in params if p.kind in kinds) - set(exclude)
 
 
 def check_options(engine: str, method: str, options: Mapping[str, Any], accepted: Iterable[str]):

@@ -27,11 +27,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .params import ParameterError, check_count
+
+if TYPE_CHECKING:
+    from .scenario import Recording
 
 UNITS: dict[str, str] = {
     "tip_position": "m",
@@ -121,14 +124,18 @@ def plan_recording(
     n_steps: int,
     n_realizations: int,
     nc: int,
-    decimate: int,
-    fields: tuple[str, ...],
-    dtype: np.dtype,
-    max_bytes: int,
+    recording: Recording,
     allowed: tuple[str, ...] = COMMON_FIELDS,
-) -> int:
-    """Check the recording request and return the number of samples."""
-    decimate = check_count("decimate", decimate)
+) -> tuple[int, tuple[str, ...]]:
+    """Check a recording request; the number of samples and the fields recorded.
+
+    ``recording`` (a :class:`cipcore.scenario.Recording`) keeps every ``decimate``-th
+    of ``n_steps`` steps of ``fields`` (default: every name in ``allowed``) for
+    ``n_realizations`` realisations of ``nc`` controllers, refused beyond ``max_bytes``.
+    """
+    decimate = check_count("decimate", recording.decimate)
+    fields = allowed if recording.fields is None else tuple(recording.fields)
+    dtype, max_bytes = recording.dtype, recording.max_bytes
     for f in fields:
         if f not in allowed:
             raise ParameterError(f"fields: unknown field {f!r}; allowed: {', '.join(allowed)}")
@@ -140,7 +147,7 @@ def plan_recording(
             f"samples needs {need / 2**30:.2f} GiB > max_bytes {max_bytes / 2**30:.2f} GiB; "
             "raise decimate, record fewer fields, use dtype=float32 or raise max_bytes"
         )
-    return n_samples
+    return n_samples, fields
 
 
 def check_duration(duration: float) -> float:

@@ -12,10 +12,11 @@ from typing import Any
 
 import numpy as np
 
-from cipcore.engine import Capabilities, check_options, keyword_options
+from cipcore.engine import Capabilities, check_options
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
+from cipcore.scenario import engine_call, flat_options
 from cipcore.schema import Trajectory, check_amplitude
 
 from ._kernels import advance_positions
@@ -96,10 +97,10 @@ class ReducedEngine:
         seed: int = 0,
         **options: Any,
     ) -> Trajectory:
-        check_options(self.name, "simulate", options, keyword_options(self.simulate_fn))
-        return self.simulate_fn(
-            get_model(model).name, params, duration, n_realizations, seed, **options
-        )
+        check_options(self.name, "simulate", options, flat_options(self.simulate_fn))
+        call = (get_model(model).name, params, duration, n_realizations, seed)
+        scenario, grouped = engine_call(call, options)
+        return self.simulate_fn(scenario, **grouped)
 
     def lyapunov(
         self,
@@ -110,8 +111,10 @@ class ReducedEngine:
         seed: int = 0,
         **options: Any,
     ) -> LyapunovResult:
-        check_options(self.name, "lyapunov", options, keyword_options(lyapunov))
-        return lyapunov(get_model(model).name, params, duration, n_realizations, seed, **options)
+        check_options(self.name, "lyapunov", options, flat_options(lyapunov, ()))
+        call = (get_model(model).name, params, duration, n_realizations, seed)
+        scenario, grouped = engine_call(call, options)
+        return lyapunov(scenario, **grouped)
 
 
 ENGINE = ReducedEngine()

@@ -31,9 +31,8 @@ from cipcore.gpu import declared_device, warp_device, warp_unavailable
 from cipcore.models import BalanceModel, get_model
 from cipcore.noise import GainNoise, make_noise
 from cipcore.params import STEPPERS, BalanceParams, check_choice, whole_steps
+from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import (
-    COMMON_FIELDS,
-    DEFAULT_MAX_BYTES,
     Trajectory,
     check_amplitude,
     check_duration,
@@ -50,7 +49,11 @@ _KERNEL: dict[str, Any] = {}
 
 
 def _kernel():
-    """The warp kernel, built on first use (warp is an optional dependency)."""
+    """The warp kernel, built on first use (warp is an optional dependency).
+
+    It is long because the warp kernel must be one function: device code cannot call back
+    into Python.
+    """
     if "k" in _KERNEL:
         return _KERNEL["k"]
     import warp as wp
@@ -201,40 +204,34 @@ class DeviceReduced:
 
 
 def simulate_gpu(
-    model: str,
-    params: BalanceParams,
-    duration: float,
-    n_realizations: int = 1,
-    seed: int = 0,
+    scenario: Scenario,
     *,
-    amplitude: float = 0.01,
     stepper: str = "semi-implicit",
-    decimate: int = 1,
-    fields: tuple[str, ...] = COMMON_FIELDS,
-    dtype: type | np.dtype = np.float64,
     noise: GainNoise | None = None,
-    threads: int | None = None,
-    max_bytes: int = DEFAULT_MAX_BYTES,
-    progress: bool = False,
+    recording: Recording = Recording(),
+    execution: Execution = Execution(),
     device: str | None = None,
 ) -> Trajectory:
     """:func:`reduced.simulate.simulate` with the kernel on a warp device (same arguments).
 
-    ``threads`` is accepted for the common interface and ignored: the whole batch
-    is one launch per chunk.  The returned Trajectory equals the CPU kernel's.
+    ``execution.threads`` is accepted for the common interface and ignored: the
+    whole batch is one launch per chunk.  The returned Trajectory equals the CPU
+    kernel's.  ``device`` is the warp device (default: warp's).
     """
+    model, params = scenario.model, scenario.params
+    decimate = recording.decimate
     nc = get_model(model).n_controllers
     check_choice("stepper", stepper, STEPPERS)
-    duration = check_duration(duration)
+    duration = check_duration(scenario.duration)
     n_steps = whole_steps("duration", duration, params.dt)
-    amplitude = check_amplitude(amplitude)
-    noise = make_noise(noise, seed, n_realizations, nc)
+    amplitude = check_amplitude(scenario.amplitude)
+    noise = make_noise(noise, scenario.seed, scenario.realizations, nc)
     nreal = noise.n_realizations
-    n_samples = plan_recording(n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes)
+    n_samples, fields = plan_recording(n_steps, nreal, nc, recording)
     chunk = min(GPU_CHUNK_STEPS, n_steps)
     dev = DeviceReduced(nc, params, nreal, amplitude, device=device, max_chunk=chunk,
                         semi_implicit=stepper == "semi-implicit")  # fmt: skip
-    out = {f: np.empty((nreal, n_samples, nc), dtype=dtype) for f in fields}
+    out = {f: np.empty((nreal, n_samples, nc), dtype=recording.dtype) for f in fields}
 
     def work(block: slice, xi: np.ndarray, n0: int) -> None:
         j0 = -(-n0 // decimate)
@@ -243,7 +240,7 @@ def simulate_gpu(
         _store(out, rec, block, j0, j1)
 
     run_blocks(noise, n_steps, work, threads=1, chunk_steps=chunk,
-               progress=progress and "reduced-gpu")  # fmt: skip
+               progress=execution.progress and "reduced-gpu")  # fmt: skip
     state = dev.final_state()
     attrs = {
         "engine": "reduced-gpu",

@@ -26,6 +26,7 @@ from cipcore.driver import run_blocks
 from cipcore.noise import GainNoise, make_noise
 from cipcore.params import STEPPERS, BalanceParams, ParameterError, check_choice, whole_steps
 from cipcore.results import LyapunovResult, check_transient
+from cipcore.scenario import Execution, Scenario
 from cipcore.schema import check_duration
 from cipcore.seeds import purpose_rng, tangent_rng
 from cipcore.stats import mean_ci95
@@ -35,54 +36,46 @@ from .simulate import n_controllers
 
 
 def lyapunov(
-    model: str,
-    params: BalanceParams,
-    duration: float = 200.0,
-    n_realizations: int = 8,
-    seed: int = 0,
+    scenario: Scenario,
     *,
     transient: float | None = None,
     renorm_interval: float | None = None,
     stepper: str = "semi-implicit",
     noise: GainNoise | None = None,
-    threads: int | None = None,
-    progress: bool = False,
+    execution: Execution = Execution(),
 ) -> LyapunovResult:
     """Largest Lyapunov exponent lambda1 (1/s) by Benettin renormalisation.
 
     Parameters
     ----------
-    model : "single" or "coupled".
-    params : model parameters (nu = 0 gives the noise-free exponent, equal
-        to the rightmost characteristic root, :mod:`reduced.stability`).
-    duration : simulated time per realisation in s, transient included.
-    n_realizations : independent noise realisations (one exponent each).
-    seed : noise seed; the initial tangent vector of realisation r comes from
-        an independent stream ``SeedSequence(seed, spawn_key=(r, 1))``.
+    scenario : the model ("single" or "coupled"), its parameters (nu = 0 gives the
+        noise-free exponent, equal to the rightmost characteristic root,
+        :mod:`reduced.stability`), the simulated time per realisation in s
+        (transient included), the independent noise realisations (one exponent
+        each) and the noise seed; the initial tangent vector of realisation r comes
+        from an independent stream ``SeedSequence(seed, spawn_key=(r, 1))``.  The
+        scenario's amplitude is not used (the tangent dynamics are linear).
     transient : s discarded at the start (default min(10 s, duration / 10)).
     renorm_interval : s between renormalisations (default tau).
     stepper : "semi-implicit" or "explicit".
+    noise : a :class:`GainNoise` to consume instead of the seed's.
+    execution : worker threads and a progress bar; the numbers do not depend on it.
     """
     return lyapunov_gains(
-        model, (params,), duration, n_realizations, seed, transient=transient,
-        renorm_interval=renorm_interval, stepper=stepper, noise=noise, threads=threads,
-        progress=progress,
+        scenario, (scenario.params,), transient=transient, renorm_interval=renorm_interval,
+        stepper=stepper, noise=noise, execution=execution,
     )[0]  # fmt: skip
 
 
 def lyapunov_gains(
-    model: str,
+    scenario: Scenario,
     params_seq: Sequence[BalanceParams],
-    duration: float = 200.0,
-    n_realizations: int = 8,
-    seed: int = 0,
     *,
     transient: float | None = None,
     renorm_interval: float | None = None,
     stepper: str = "semi-implicit",
     noise: GainNoise | None = None,
-    threads: int | None = None,
-    progress: bool = False,
+    execution: Execution = Execution(),
 ) -> list[LyapunovResult]:
     """:func:`lyapunov` at several parameter sets (e.g. gains) under the same draws.
 
@@ -90,8 +83,15 @@ def lyapunov_gains(
     set, so the draws are shared (common random numbers, as separate :func:`lyapunov`
     calls with one seed draw them) and made once instead of once per set; each
     result equals :func:`lyapunov`'s for its parameters alone.  The sets share the
-    step ``dt`` and the delay ``tau`` (s).  Arguments as :func:`lyapunov`.
+    step ``dt`` and the delay ``tau`` (s).  ``scenario`` gives the model, duration,
+    realisations and seed (its ``params`` are not used: ``params_seq`` replaces
+    them); the other arguments as :func:`lyapunov`.
+
+    The function is long because the parameter sets' checks, the tangent start and the
+    Benettin accumulation share the run's arrays by closure.
     """
+    model, duration = scenario.model, scenario.duration
+    seed, n_realizations = scenario.seed, scenario.realizations
     params_seq = tuple(params_seq)
     if not params_seq:
         raise ParameterError("params_seq must hold at least one parameter set")
@@ -135,7 +135,8 @@ def lyapunov_gains(
                 p.noise_scale, p.dt, semi, n0, renorm_steps, transient_steps, logsum[g, block],
             )  # fmt: skip
 
-    run_blocks(noise, n_steps, work, threads=threads, progress=progress and "lyapunov")
+    run_blocks(noise, n_steps, work, threads=execution.threads,
+               progress=execution.progress and "lyapunov")  # fmt: skip
     # accumulation starts at the first renormalisation after the transient
     start = (transient_steps // renorm_steps) * renorm_steps
     t_measured = (n_steps - start) * params.dt
@@ -215,28 +216,25 @@ def numerical_setting(
 
 
 def critical_gain(
-    model: str,
-    base: BalanceParams,
+    scenario: Scenario,
     beta_range: tuple[float, float],
+    *,
     target: float = 5e-4,
     n_gains: int = 7,
-    duration: float = 500.0,
-    n_realizations: int = 16,
-    seed: int = 0,
-    *,
     n_bootstrap: int = 2000,
-    threads: int | None = None,
-    progress: bool = False,
+    execution: Execution = Execution(),
 ) -> CriticalGain:
     """The gain beta* at which lambda1(beta) = ``target`` (paper Fig. 3: 5e-4).
 
     lambda1 is evaluated at ``n_gains`` gains spread over ``beta_range`` with
-    the same noise realisations at every gain; a quadratic (or, for fewer than
-    four gains, linear) least-squares fit of lambda1 against beta is solved for
-    the target.  The fit is repeated on bootstrap resamples of the realisations
-    to give the uncertainty.  Raises :class:`ParameterError` when the target is
-    not crossed within ``beta_range``.
+    the same noise realisations at every gain (the scenario's parameters with the
+    gain replaced; its duration, realisations and seed); a quadratic (or, for
+    fewer than four gains, linear) least-squares fit of lambda1 against beta is
+    solved for the target.  The fit is repeated on ``n_bootstrap`` bootstrap
+    resamples of the realisations to give the uncertainty.  Raises
+    :class:`ParameterError` when the target is not crossed within ``beta_range``.
     """
+    model, base, seed = scenario.model, scenario.params, scenario.seed
     lo, hi = (float(v) for v in beta_range)
     if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
         raise ParameterError(
@@ -247,10 +245,8 @@ def critical_gain(
     betas = np.linspace(lo, hi, n_gains)
     per = []
     cis = []
-    for res in lyapunov_gains(
-        model, [base.with_(beta=float(b)) for b in betas], duration, n_realizations, seed,
-        threads=threads, progress=progress,
-    ):  # fmt: skip
+    gains = [base.with_(beta=float(b)) for b in betas]
+    for res in lyapunov_gains(scenario, gains, execution=execution):
         per.append(res.per_realization)
         cis.append(res.ci95)
     per_arr = np.array(per)  # (gains, realisations)
@@ -270,7 +266,7 @@ def critical_gain(
     ci = (float(np.percentile(boots_arr, 2.5)), float(np.percentile(boots_arr, 97.5)))
     return CriticalGain(
         beta_star=float(beta_star), std=float(boots_arr.std(ddof=1)), ci95=ci, target=target,
-        betas=betas, lambdas=mean, ci95s=np.array(cis), model=model, duration=duration,
+        betas=betas, lambdas=mean, ci95s=np.array(cis), model=model, duration=scenario.duration,
         n_realizations=per_arr.shape[1], seed=seed,
     )  # fmt: skip
 

@@ -23,8 +23,9 @@ import numpy as np
 
 from cipcore.driver import run_blocks
 from cipcore.noise import GainNoise
-from cipcore.params import STEPPERS, BalanceParams, ParameterError, check_choice, whole_steps
-from cipcore.schema import DEFAULT_MAX_BYTES, Trajectory, check_amplitude, plan_recording
+from cipcore.params import STEPPERS, ParameterError, check_choice, whole_steps
+from cipcore.scenario import Execution, Recording, Scenario
+from cipcore.schema import Trajectory, check_amplitude, check_duration, plan_recording
 
 from ._nonlinear_kernel import advance_angle
 
@@ -62,34 +63,28 @@ class _GainAndFloorNoise:
 
 
 def simulate_nonlinear(
-    params: BalanceParams,
-    duration: float,
-    n_realizations: int = 1,
-    seed: int = 0,
+    scenario: Scenario,
     *,
-    amplitude: float = 0.01,
     noise_floor: float = 0.0,
     stepper: str = "semi-implicit",
-    decimate: int = 1,
-    fields: tuple[str, ...] = NONLINEAR_FIELDS,
-    dtype: type | np.dtype = np.float64,
-    threads: int | None = None,
-    max_bytes: int = DEFAULT_MAX_BYTES,
+    recording: Recording = Recording(),
+    execution: Execution = Execution(),
     first_realization: int = 0,
 ) -> Trajectory:
     """Simulate eq. (1) and record theta (module docstring).
 
     Parameters
     ----------
-    params : gains (1/s^2), damping (1/s), noise strength nu (s^1/2), delay and step (s).
-    duration : simulated time in s, a whole number of steps.
-    n_realizations, seed : independent noise realisations and their root seed.
-    amplitude : initial angle in rad, with the constant history theta = amplitude on
-        [-tau, 0] and theta' = 0 (as the linear models' initial balancing error).
+    scenario : model "single" (eq. (1) is one stick); gains (1/s^2), damping (1/s),
+        noise strength nu (s^1/2), delay and step (s); the simulated time in s (a
+        whole number of steps); the independent noise realisations and their root
+        seed; the amplitude: the initial angle in rad, with the constant history
+        theta = amplitude on [-tau, 0] and theta' = 0 (as the linear models'
+        initial balancing error).
     noise_floor : sigma >= 0, additive white noise on theta'' (rad s^-3/2).
     stepper : "semi-implicit" or "explicit", as in :func:`reduced.simulate`.
-    decimate, fields, dtype, threads, max_bytes : as in :func:`reduced.simulate`;
-        fields from :data:`NONLINEAR_FIELDS` ("balancing_error" and "angle" are theta).
+    recording, execution : as in :func:`reduced.simulate`; fields from
+        :data:`NONLINEAR_FIELDS` ("balancing_error" and "angle" are theta).
     first_realization : index of the first realisation (splits a run without
         changing any draw).
 
@@ -97,30 +92,25 @@ def simulate_nonlinear(
     -------
     Trajectory with the fields shaped (R, S, 1), attrs["model"] = "nonlinear".
     """
+    params, decimate = scenario.params, recording.decimate
+    if scenario.model != "single":
+        raise ParameterError(f"model: the nonlinear stick is eq. (1), one stick: 'single', "
+                             f"got {scenario.model!r}")  # fmt: skip
     check_choice("stepper", stepper, STEPPERS)
-    try:
-        duration = float(duration)
-    except (TypeError, ValueError):
-        raise ParameterError(
-            f"duration must be a number of seconds > 0, got {duration!r}"
-        ) from None
-    if not np.isfinite(duration) or duration <= 0:
-        raise ParameterError(f"duration must be finite and > 0 s, got {duration!r}")
+    duration = check_duration(scenario.duration)
     sigma = float(noise_floor)
     if not np.isfinite(sigma) or sigma < 0:
         raise ParameterError(f"noise_floor must be finite and >= 0, got {noise_floor!r}")
     n_steps = whole_steps("duration", duration, params.dt)
-    amplitude = check_amplitude(amplitude)
-    noise = _GainAndFloorNoise(seed, n_realizations, first_realization)
+    amplitude = check_amplitude(scenario.amplitude)
+    noise = _GainAndFloorNoise(scenario.seed, scenario.realizations, first_realization)
     nreal = noise.n_realizations
-    n_samples = plan_recording(
-        n_steps, nreal, 1, decimate, tuple(fields), dtype, max_bytes, allowed=NONLINEAR_FIELDS
-    )
+    n_samples, fields = plan_recording(n_steps, nreal, 1, recording, allowed=NONLINEAR_FIELDS)
     d = params.delay_steps
     state = np.zeros((nreal, 2))
     state[:, 0] = amplitude
     hist = np.full((nreal, d), amplitude)
-    out = {f: np.empty((nreal, n_samples, 1), dtype=dtype) for f in fields}
+    out = {f: np.empty((nreal, n_samples, 1), dtype=recording.dtype) for f in fields}
     semi = stepper == "semi-implicit"
     floor_scale = sigma / np.sqrt(params.dt)
 
@@ -136,7 +126,7 @@ def simulate_nonlinear(
         for name, arr in out.items():
             arr[block, j0:j1, 0] = rec[..., 1 if name == "balancing_error_velocity" else 0]
 
-    run_blocks(noise, n_steps, work, threads=threads)
+    run_blocks(noise, n_steps, work, threads=execution.threads)
     attrs = {
         "engine": "reduced",
         "model": "nonlinear",

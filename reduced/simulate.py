@@ -18,13 +18,11 @@ from cipcore.models import get_model
 from cipcore.noise import GainNoise, make_noise
 from cipcore.params import (
     STEPPERS,
-    BalanceParams,
     check_choice,
     whole_steps,
 )
+from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import (
-    COMMON_FIELDS,
-    DEFAULT_MAX_BYTES,
     Trajectory,
     check_amplitude,
     check_duration,
@@ -40,59 +38,51 @@ def n_controllers(model: str) -> int:
 
 
 def simulate(
-    model: str,
-    params: BalanceParams,
-    duration: float,
-    n_realizations: int = 1,
-    seed: int = 0,
+    scenario: Scenario,
     *,
-    amplitude: float = 0.01,
     stepper: str = "semi-implicit",
-    decimate: int = 1,
-    fields: tuple[str, ...] = COMMON_FIELDS,
-    dtype: type | np.dtype = np.float64,
     noise: GainNoise | None = None,
-    threads: int | None = None,
-    max_bytes: int = DEFAULT_MAX_BYTES,
-    progress: bool = False,
+    recording: Recording = Recording(),
+    execution: Execution = Execution(),
 ) -> Trajectory:
     """Simulate the reduced model and record its time series.
 
     Parameters
     ----------
-    model : "single" or "coupled".
-    params : gains, damping, noise, delay and time step.
-    duration : simulated time in s, a whole number of steps.
-    n_realizations : independent noise realisations.
-    seed : root seed of the noise (ignored when ``noise`` is given).
-    amplitude : initial balancing error in m (see the module docstring).
+    scenario : the model ("single" or "coupled"), the gains, damping, noise, delay
+        and time step, the duration (s, a whole number of steps), the number of
+        independent noise realisations, the root seed of the noise (ignored when
+        ``noise`` is given) and the initial balancing error (m, see the module
+        docstring).
     stepper : "semi-implicit" (MuJoCo ``Euler``) or "explicit" (Euler–Maruyama).
-    decimate : record every ``decimate``-th step.
-    fields : names from :data:`reduced.schema.COMMON_FIELDS` to record.
-    dtype : dtype of the recorded arrays (float32 halves memory).
     noise : a :class:`GainNoise` to consume (e.g. shared with another engine);
         it must be at position 0.
-    threads : worker threads (default: all cores); results do not depend on it.
-    max_bytes : refuse recordings larger than this.
+    recording : every ``decimate``-th step of the ``fields`` (names from
+        :data:`cipcore.schema.COMMON_FIELDS`, default all), as ``dtype``; a recording
+        beyond ``max_bytes`` is refused.
+    execution : worker threads (default: all cores; results do not depend on it)
+        and a progress bar.
 
     Returns
     -------
     Trajectory with the requested fields shaped (R, S, C), S = ceil(steps / decimate).
     """
+    model, params = scenario.model, scenario.params
+    decimate = recording.decimate
     nc = n_controllers(model)
     check_choice("stepper", stepper, STEPPERS)
-    duration = check_duration(duration)
+    duration = check_duration(scenario.duration)
     n_steps = whole_steps("duration", duration, params.dt)
-    amplitude = check_amplitude(amplitude)
-    noise = make_noise(noise, seed, n_realizations, nc)
+    amplitude = check_amplitude(scenario.amplitude)
+    noise = make_noise(noise, scenario.seed, scenario.realizations, nc)
     nreal = noise.n_realizations
-    n_samples = plan_recording(n_steps, nreal, nc, decimate, tuple(fields), dtype, max_bytes)
+    n_samples, fields = plan_recording(n_steps, nreal, nc, recording)
 
     d = params.delay_steps
     state = np.zeros((nreal, 2 + 2 * nc))
     state[:, 0] = amplitude
     hist = np.full((nreal, nc, d), amplitude)
-    out = {f: np.empty((nreal, n_samples, nc), dtype=dtype) for f in fields}
+    out = {f: np.empty((nreal, n_samples, nc), dtype=recording.dtype) for f in fields}
     semi = stepper == "semi-implicit"
 
     def work(block: slice, xi: np.ndarray, n0: int) -> None:
@@ -107,7 +97,8 @@ def simulate(
         )  # fmt: skip
         _store(out, rec, block, j0, j1)
 
-    run_blocks(noise, n_steps, work, threads=threads, progress=progress and "reduced")
+    run_blocks(noise, n_steps, work, threads=execution.threads,
+               progress=execution.progress and "reduced")  # fmt: skip
     time = np.arange(n_samples) * (params.dt * decimate)
     attrs = {
         "engine": "reduced",

@@ -58,17 +58,16 @@ amplitudes where the twin is used (1e-6 m, theta ~ 2e-6 rad).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
 from cipcore.driver import run_blocks
 from cipcore.models import get_model
 from cipcore.noise import GainNoise, make_noise
-from cipcore.params import BalanceParams, ParameterError, check_positive, whole_steps
+from cipcore.params import ParameterError, check_positive, whole_steps
+from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import (
-    COMMON_FIELDS,
-    DEFAULT_MAX_BYTES,
     Trajectory,
     check_amplitude,
     check_duration,
@@ -150,36 +149,32 @@ class TwinParams:
 
 
 def simulate_twin(
-    model: str,
-    params: BalanceParams,
+    scenario: Scenario,
     twin: TwinParams,
-    duration: float,
-    n_realizations: int = 1,
-    seed: int = 0,
     *,
-    amplitude: float = 0.01,
-    decimate: int = 1,
-    fields: tuple[str, ...] = COMMON_FIELDS,
     noise: GainNoise | None = None,
-    threads: int | None = None,
-    max_bytes: int = DEFAULT_MAX_BYTES,
+    recording: Recording = Recording(),
+    execution: Execution = Execution(),
 ) -> Trajectory:
     """Time series of the twin, same call and schema as :func:`reduced.simulate.simulate`.
 
-    ``params`` gives the controller (beta, nu, tau and the dt it assumes, so
-    d = tau/dt and the noise scale nu/sqrt(dt)); ``twin`` the body, stepped at
-    ``twin.dt``.  Initial condition as the MuJoCo runs: at rest, every balancing
-    error at ``amplitude`` with the constant history e(t) = amplitude, t < 0.
+    The scenario's ``params`` give the controller (beta, nu, tau and the dt it
+    assumes, so d = tau/dt and the noise scale nu/sqrt(dt)); ``twin`` the body,
+    stepped at ``twin.dt``.  Initial condition as the MuJoCo runs: at rest, every
+    balancing error at the scenario's ``amplitude`` with the constant history
+    e(t) = amplitude, t < 0.  The twin records float64 (``recording.dtype`` is not
+    used) and shows no progress bar.
     """
+    model, params, decimate = scenario.model, scenario.params, recording.decimate
     nc = get_model(model).n_controllers
     if twin.rod and nc != 2:
         raise ParameterError(f"a rod needs the coupled model, got model {model!r}")
-    duration = check_duration(duration)
+    duration = check_duration(scenario.duration)
     n_steps = whole_steps("duration", duration, twin.dt)
-    amplitude = check_amplitude(amplitude)
-    noise = make_noise(noise, seed, n_realizations, nc)
+    amplitude = check_amplitude(scenario.amplitude)
+    noise = make_noise(noise, scenario.seed, scenario.realizations, nc)
     nreal = noise.n_realizations
-    n_samples = plan_recording(n_steps, nreal, nc, decimate, tuple(fields), np.float64, max_bytes)
+    n_samples, fields = plan_recording(n_steps, nreal, nc, replace(recording, dtype=np.float64))
     d = params.delay_steps
     state = np.zeros((nreal, nc, 4))
     state[:, :, 1] = amplitude
@@ -204,7 +199,7 @@ def simulate_twin(
         )
         _store(out, rec, block, j0, j1)
 
-    run_blocks(noise, n_steps, work, threads=threads)
+    run_blocks(noise, n_steps, work, threads=execution.threads)
     attrs = {
         "engine": "twin",
         "model": model,

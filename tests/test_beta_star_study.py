@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cipcore.scenario import Scenario
 from reduced import BalanceParams
 from reduced.beta_star import (
     Discretisation,
@@ -34,11 +35,8 @@ def test_default_and_hold_dt_equal_todays_lambda1_to_the_bit(model, setting):
     plan = RunPlan((10.0, 30.0), n_realizations=3, seed=5, base_dt=1e-3, transient=3.0)
     rec = run_records(model, BASE, betas, [setting], plan)[0]
     ref = lyapunov_gains(
-        model,
+        Scenario(model, BASE, 30.0, 3, 5),
         [BASE.with_(beta=b) for b in betas],
-        30.0,
-        3,
-        5,
         transient=3.0,
         stepper=setting.scheme,
     )
@@ -53,7 +51,8 @@ def test_beta_star_equals_critical_gain_at_todays_setting():
     rec = run_records("single", BASE, betas, [Discretisation()], plan)[0]
     idx = bootstrap_indices(2, 4, 200)
     point, boots = fit_beta_star(betas, rec.lambdas("delay-state", "transient", 60000), 5e-4, idx)
-    ref = critical_gain("single", BASE, (16.0, 26.0), 5e-4, 4, 60.0, 4, 2, n_bootstrap=200)
+    scn = Scenario("single", BASE, 60.0, 4, 2)
+    ref = critical_gain(scn, (16.0, 26.0), target=5e-4, n_gains=4, n_bootstrap=200)
     assert point == ref.beta_star
     assert np.std(boots[np.isfinite(boots)], ddof=1) == ref.std
 

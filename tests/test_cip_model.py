@@ -10,8 +10,9 @@ from cip.linearize import linearize, transition_check
 from cip.lyapunov import lyapunov_full
 from cip.mjcf_params import read_mapping
 from cip.model import MODEL_DIR, CIPParams, bob_rotational_inertia, build, mjcf
-from cip.runner import CIPRunner
+from cip.runner import CIPRunner, RigidBody
 from cip.simulate import DivergenceWarning, simulate_full
+from cipcore.scenario import Execution, Recording, Scenario
 from reduced import (
     BalanceParams,
     GainNoise,
@@ -119,7 +120,9 @@ def test_energy_conserved_without_control_and_damping():
 
 
 def _tip_velocity_mismatch(amplitude: float) -> tuple[float, object]:
-    tr = simulate_full("coupled", BalanceParams(beta=20.306), 5.0, 3, seed=2, amplitude=amplitude)
+    tr = simulate_full(
+        Scenario("coupled", BalanceParams(beta=20.306), 5.0, 3, 2, amplitude=amplitude)
+    )
     vt = tr["tip_velocity"]
     diff = vt[..., 0] - vt[..., 1]
     return float(np.sqrt((diff**2).mean() / (vt**2).mean())), tr
@@ -180,9 +183,15 @@ def test_delay_is_exactly_tau_and_noise_at_time_t():
 
 def _rel_l2(model, amplitude, mass_ratio, duration=10.0):
     phys = CIPParams.from_reduced(P, mass_ratio=mass_ratio)
-    full = simulate_full(model, P, duration, 2, seed=1, amplitude=amplitude, physical=phys,
-                         fields=("balancing_error",))  # fmt: skip
-    red = simulate(model, P, duration, 2, seed=1, amplitude=amplitude, fields=("balancing_error",))
+    full = simulate_full(
+        Scenario(model, P, duration, 2, 1, amplitude=amplitude),
+        body=RigidBody(physical=phys),
+        recording=Recording(fields=("balancing_error",)),
+    )
+    red = simulate(
+        Scenario(model, P, duration, 2, 1, amplitude=amplitude),
+        recording=Recording(fields=("balancing_error",)),
+    )
     ef, er = full["balancing_error"], red["balancing_error"]
     return np.linalg.norm(ef - er) / np.linalg.norm(er)
 
@@ -198,8 +207,8 @@ def test_same_noise_same_trajectory_as_reduced_model(model):
 
 
 def test_same_seed_same_numbers_whatever_threads():
-    a = simulate_full("coupled", P, 1.05, 3, seed=9, threads=1)
-    b = simulate_full("coupled", P, 1.05, 3, seed=9, threads=2)
+    a = simulate_full(Scenario("coupled", P, 1.05, 3, 9), execution=Execution(threads=1))
+    b = simulate_full(Scenario("coupled", P, 1.05, 3, 9), execution=Execution(threads=2))
     for f in a.data:
         np.testing.assert_array_equal(a[f], b[f])
     assert a.time.size == 1050  # the last, partial chunk of tau is included
@@ -223,7 +232,7 @@ def test_linearisation_matches_reduced_up_to_documented_terms():
 
 def test_noise_free_full_exponent_is_root_with_cart_reaction():
     p = BalanceParams(beta=23.0, nu=0.0)
-    lam = lyapunov_full("single", p, 100.0, 1).lambda1
+    lam = lyapunov_full(Scenario("single", p, 100.0, 1)).lambda1
     eff = characteristic_roots("single", p.with_(alpha=22.0 * 1.001)).abscissa
     assert lam == pytest.approx(eff, abs=2e-4)
 
@@ -231,9 +240,9 @@ def test_noise_free_full_exponent_is_root_with_cart_reaction():
 @pytest.mark.parametrize("beta", [19.5, 20.3, 23.0])
 def test_full_lyapunov_agrees_with_reduced_within_ci(beta):
     p = BalanceParams(beta=beta)
-    kw = {"duration": 100.0, "n_realizations": 6, "seed": 3}
-    full = lyapunov_full("single", p, **kw)
-    red = lyapunov("single", p, **kw)
+    scn = Scenario("single", p, 100.0, 6, 3)
+    full = lyapunov_full(scn)
+    red = lyapunov(scn)
     assert full.ci95[0] <= red.lambda1 <= full.ci95[1]
     assert red.ci95[0] <= full.lambda1 <= red.ci95[1]
 
@@ -241,33 +250,35 @@ def test_full_lyapunov_agrees_with_reduced_within_ci(beta):
 def test_divergence_stops_and_keeps_what_was_computed():
     p = BalanceParams(beta=1e9, nu=0.0)
     with pytest.warns(DivergenceWarning, match="realisation"):
-        tr = simulate_full("single", p, 5.0, 2, amplitude=0.01)
+        tr = simulate_full(Scenario("single", p, 5.0, 2, amplitude=0.01))
     assert tr.attrs["diverged"] is not None
     assert 0 < tr.time.size < 5000
     assert np.isfinite(tr["balancing_error"][:, :10]).all()
     # every realisation keeps its samples up to the stop, whatever the thread timing
     for threads in (1, 2):
         with pytest.warns(DivergenceWarning):
-            again = simulate_full("single", p, 5.0, 2, amplitude=0.01, threads=threads)
+            again = simulate_full(
+                Scenario("single", p, 5.0, 2, amplitude=0.01), execution=Execution(threads=threads)
+            )
         assert again.time.size == tr.time.size
         np.testing.assert_array_equal(again["balancing_error"], tr["balancing_error"])
 
 
 def test_bad_input():
     with pytest.raises(ParameterError, match="amplitude"):
-        simulate_full("single", P, 1.0, amplitude=0.5)
+        simulate_full(Scenario("single", P, 1.0, amplitude=0.5))
     with pytest.raises(ParameterError, match="bob_mass"):
         CIPParams(bob_mass=-1.0)
     with pytest.raises(ParameterError, match="integrator"):
         CIPParams(integrator="Verlet")
     with pytest.raises(ParameterError, match="fields"):
-        simulate_full("single", P, 1.0, fields=("torque",))
+        simulate_full(Scenario("single", P, 1.0), recording=Recording(fields=("torque",)))
 
 
 def test_full_lyapunov_same_seed_same_numbers_whatever_threads():
     p = BalanceParams(beta=21.0)
-    a = lyapunov_full("coupled", p, 5.0, 3, seed=4, threads=1)
-    b = lyapunov_full("coupled", p, 5.0, 3, seed=4, threads=2)
+    a = lyapunov_full(Scenario("coupled", p, 5.0, 3, 4), execution=Execution(threads=1))
+    b = lyapunov_full(Scenario("coupled", p, 5.0, 3, 4), execution=Execution(threads=2))
     np.testing.assert_array_equal(a.per_realization, b.per_realization)
 
 
@@ -280,13 +291,15 @@ def test_pd_controller_balances_the_cip():
 
     p = BalanceParams(beta=0.0, nu=0.0, tau=0.001)
     kp, kd = 60.0, 10.0
-    good = simulate_full("coupled", p, 3.0, 1, amplitude=1e-4,
-                         controller=Controller("pd", kp=kp, kd=kd))  # fmt: skip
+    good = simulate_full(
+        Scenario("coupled", p, 3.0, 1, amplitude=1e-4), controller=Controller("pd", kp=kp, kd=kd)
+    )
     e = good["balancing_error"][0, :, 0]
     rate = np.log(e[-1] / e[2000]) / (good.time[-1] - good.time[2000])
     slow = max(np.roots([1.0, 50.0 + kd, kp - 22.0 * 1.001]).real)
     assert rate == pytest.approx(slow, rel=0.01)
     assert good.attrs["controller"] == "pd"
-    weak = simulate_full("single", p, 3.0, 1, amplitude=0.02,
-                         controller=Controller("pd", kp=10.0, kd=10.0))  # fmt: skip
+    weak = simulate_full(
+        Scenario("single", p, 3.0, 1, amplitude=0.02), controller=Controller("pd", kp=10.0, kd=10.0)
+    )
     assert np.abs(weak["balancing_error"][0, -1, 0]) > 0.02

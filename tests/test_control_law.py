@@ -102,12 +102,13 @@ def test_the_warp_ring_and_recording_equal_the_numba_kernel_bit_for_bit(model, m
     gives the numba kernel's trajectories exactly (chunks of 300 steps, decimation 7)."""
     pytest.importorskip("warp", reason="warp-lang is not installed (pip install 'cipval[warp]')")
     from cipcore.params import BalanceParams
+    from cipcore.scenario import Recording, Scenario
     from reduced import gpu
     from reduced.simulate import simulate
 
     monkeypatch.setattr(gpu, "GPU_CHUNK_STEPS", 300)
-    p, kw = BalanceParams(beta=20.306), {"amplitude": 1e-3, "decimate": 7, "seed": 3}
-    ref = simulate(model, p, 1.25, 3, **kw)
-    dev = gpu.simulate_gpu(model, p, 1.25, 3, device="cpu", **kw)
+    scn = Scenario(model, BalanceParams(beta=20.306), 1.25, 3, 3, amplitude=1e-3)
+    ref = simulate(scn, recording=Recording(decimate=7))
+    dev = gpu.simulate_gpu(scn, device="cpu", recording=Recording(decimate=7))
     for field, x in ref.data.items():
         assert np.array_equal(dev[field], x), field

@@ -18,11 +18,12 @@ import pytest
 from helpers import engine_or_skip
 
 from cip.model import CIPParams, build
-from cip.runner import MujocoRollout
+from cip.runner import MujocoRollout, RigidBody
 from cip.simulate import simulate_full
 from cipcore import registry
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
+from cipcore.scenario import EngineTarget, Execution, Scenario
 from validation.checks.agreement import instrument_checks
 from validation.checks.stats import FAIL
 from validation.faults.catalogue import Fault, make_fault
@@ -55,8 +56,11 @@ def faulty_backend(base: type, fault: Fault) -> type:
 
 
 def _run(backend: type, model: str = "single", duration: float = 1.0) -> np.ndarray:
-    return simulate_full(model, P, duration, 1, 3, amplitude=1e-3, backend=backend,
-                         threads=1)["balancing_error"]  # fmt: skip
+    return simulate_full(
+        Scenario(model, P, duration, 1, 3, amplitude=1e-3),
+        body=RigidBody(backend=backend),
+        execution=Execution(threads=1),
+    )["balancing_error"]
 
 
 @functools.cache
@@ -107,7 +111,10 @@ def test_one_step_delay_error_fails_the_run_checks(name, monkeypatch) -> None:
     faulty = dataclasses.replace(engine, name=f"{name}-late", backend=lambda: late)
     monkeypatch.setattr(sys.modules[__name__], "FAULTY", faulty, raising=False)
     monkeypatch.setitem(registry.ENGINES, faulty.name, f"{__name__}:FAULTY")
-    checks = {c.name: c for c in instrument_checks(1, 2, engine=faulty.name, models=("single",))}
+    checks = {
+        c.name: c
+        for c in instrument_checks(1, 2, target=EngineTarget(faulty.name), models=("single",))
+    }
     delay = checks["delay.single"]
     assert delay.status == FAIL and delay.values["measured_steps"] == 101, delay
     assert checks["twin.trajectory.single"].status == FAIL

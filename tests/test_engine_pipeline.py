@@ -9,6 +9,7 @@ from helpers import engine_or_skip
 from cip.mjcf_params import read_mapping
 from cipcore.params import BalanceParams
 from cipcore.registry import get_engine
+from cipcore.scenario import EngineTarget, Recording, Scenario
 from reduced.twin import TwinParams, simulate_twin
 from validation.checks.agreement import instrument_checks, model_file
 from validation.checks.metrics import relative_l2
@@ -25,7 +26,8 @@ def _twin_distance(name: str, model: str, integrator: str | None, duration: floa
     tw = TwinParams(**eng.twin_terms(mp))
     kw = {"amplitude": 1e-6, "fields": ("balancing_error",)}
     full = eng.simulate(model, p, duration, 2, 3, physical=mp.physical(), mj_model=m, **kw)
-    twin = simulate_twin(model, p, tw, duration, 2, 3, **kw)
+    scn = Scenario(model, p, duration, 2, 3, amplitude=1e-6)
+    twin = simulate_twin(scn, tw, recording=Recording(fields=("balancing_error",)))
     return relative_l2(full["balancing_error"], twin["balancing_error"]), eng, tw
 
 
@@ -41,7 +43,10 @@ def test_twin_steps_as_mujoco_for_each_integrator(model: str, integrator: str) -
     p = BalanceParams(beta=BETA[model])
     kw = {"amplitude": 1e-6, "fields": ("balancing_error",)}
     full = eng.simulate(model, p, 2.0, 2, 3, physical=read_mapping(m).physical(), mj_model=m, **kw)
-    e_euler = simulate_twin(model, p, euler, 2.0, 2, 3, **kw)["balancing_error"]
+    scn = Scenario(model, p, 2.0, 2, 3, amplitude=1e-6)
+    e_euler = simulate_twin(scn, euler, recording=Recording(fields=("balancing_error",)))[
+        "balancing_error"
+    ]
     assert relative_l2(full["balancing_error"], e_euler) > 1e3 * eng.twin_tolerance_for(model)
 
 
@@ -67,7 +72,9 @@ def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: s
     CIPVAL_WARP_DEVICE=cpu (else skipped with the reason)."""
     engine_or_skip(name)
     fault = make_fault(kind, size)
-    checks = instrument_checks(1, 1, threads=1, fault=fault, models=("single",), engine=name)
+    checks = instrument_checks(
+        1, 1, threads=1, fault=fault, models=("single",), target=EngineTarget(name)
+    )
     failed = [c.name for c in checks if c.status == "fail"]
     assert failed, f"{kind} {size} in {name} was not flagged"
     assert "twin.trajectory.single" in failed
@@ -77,7 +84,7 @@ def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: s
 
 def test_unmodified_drake_passes_every_direct_check() -> None:
     engine_or_skip("drake")
-    checks = instrument_checks(1, 1, threads=1, engine="drake")
+    checks = instrument_checks(1, 1, threads=1, target=EngineTarget("drake"))
     assert [c.name for c in checks if c.status != "pass"] == []
 
 

@@ -21,6 +21,7 @@ import pytest
 from cip.mjcf_params import read_mapping
 from cipcore.params import BalanceParams
 from cipcore.registry import availability, get_engine
+from cipcore.scenario import Recording, Scenario
 from reduced.twin import TwinParams, simulate_twin
 from validation.checks.agreement import model_file
 from validation.checks.metrics import relative_l2
@@ -49,7 +50,11 @@ def _pair(name: str, model: str, duration: float = 1.0):
     full = eng.simulate(model, p, duration, 1, 5, physical=mp.physical(), mj_model=m,
                         fields=FIELDS, amplitude=AMPLITUDE)  # fmt: skip
     tw = TwinParams(**eng.twin_terms(mp))
-    twin = simulate_twin(model, p, tw, duration, 1, 5, amplitude=AMPLITUDE, fields=FIELDS)
+    twin = simulate_twin(
+        Scenario(model, p, duration, 1, 5, amplitude=AMPLITUDE),
+        tw,
+        recording=Recording(fields=FIELDS),
+    )
     return full, twin, tw, mp, p
 
 
@@ -63,7 +68,11 @@ def test_engine_matches_its_own_twin_and_not_another(name: str, model: str) -> N
     other = TwinParams(**{**mp.twin_terms(), "integrator": "Euler"})
     if other == tw:
         return  # Bullet's single model: semi-implicit Euler is its own twin
-    far = simulate_twin(model, p, other, 1.0, 1, 5, amplitude=AMPLITUDE, fields=FIELDS)
+    far = simulate_twin(
+        Scenario(model, p, 1.0, 1, 5, amplitude=AMPLITUDE),
+        other,
+        recording=Recording(fields=FIELDS),
+    )
     off = relative_l2(full["balancing_error"], far["balancing_error"])
     assert off > 30 * eng.twin_tolerance_for(model), f"{name} {model}: other twin {off:.3e}"
 
@@ -78,13 +87,16 @@ def test_rigid_rod_stretch_is_held_and_a_missing_rod_fails(name: str) -> None:
     sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
     st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
     ef = full["balancing_error"]
-    args = (tw, eng.capabilities.rod, eng.rod_tolerance, True, "")
+    args = (tw, (eng.capabilities.rod, eng.rod_tolerance))
     held = rod_check("coupled", sf, st, ef, *args)
     assert held.status == PASS, held
     assert held.values["stretch_over_balancing_error"] < eng.rod_tolerance / 10, held
     loose = ef[..., 0] - ef[..., 1] + 1e-3 * np.abs(ef[..., 0])  # tips free of each other
     assert rod_check("coupled", loose, st, ef, *args).status == FAIL
-    assert rod_check("coupled", sf, st, ef, *args[:-2], False, "").status == FAIL
+    stopped = ef.copy()
+    stopped[0, -1, 0] = np.nan  # a run that ended in a non-finite state
+    assert rod_check("coupled", sf, st, stopped, *args).status == FAIL
+    assert rod_check("coupled", sf[:, :-1], st, ef[:, :-1], *args).status == FAIL  # cut short
 
 
 def test_a_soft_twin_rod_is_compared_by_relative_distance() -> None:
@@ -96,8 +108,8 @@ def test_a_soft_twin_rod_is_compared_by_relative_distance() -> None:
     rng = np.random.default_rng(0)
     st = rng.normal(size=(2, 50)) * 1e-10
     ef = rng.normal(size=(2, 50, 2)) * 1e-6
-    assert rod_check("coupled", st * 1.001, st, ef, tw, "soft", 1e-2, True, "").status == PASS
-    bad = rod_check("coupled", st * 1.1, st, ef, tw, "soft", 1e-2, True, "")
+    assert rod_check("coupled", st * 1.001, st, ef, tw, ("soft", 1e-2)).status == PASS
+    bad = rod_check("coupled", st * 1.1, st, ef, tw, ("soft", 1e-2))
     assert bad.status == FAIL and bad.values["stretch_relative_l2"] == pytest.approx(0.1)
 
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from helpers import running
 
+from cipcore.scenario import EngineTarget
 from validation.cli.main import main
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "chunk_engine.py"
@@ -200,7 +201,7 @@ def test_run_checks_pass_for_the_example_and_fail_with_a_one_step_delay_error():
     for command, good in ((CMD, True), (f"{CMD} --delay-error", False)):
         a = argparse.Namespace(engine=None, engine_cmd=command, integrator=None)
         check_engine_options(a)
-        checks = {c.name: c for c in instrument_checks(1, 2, engine=a.engine)}
+        checks = {c.name: c for c in instrument_checks(1, 2, target=EngineTarget(a.engine))}
         for name in ("twin.trajectory.single", "delay.single", "twin.trajectory.coupled"):
             assert (checks[name].status == "pass") is good, (command, checks[name])
         if not good:

@@ -9,9 +9,10 @@ import pytest
 from cip.lyapunov import lyapunov_full
 from cip.mjstages import unused_stage_flags
 from cip.model import CIPParams, build
-from cip.runner import MujocoRollout
+from cip.runner import MujocoRollout, RigidBody
 from cip.simulate import simulate_full
 from cipcore.params import BalanceParams
+from cipcore.scenario import Execution, Recording, Scenario
 
 D = mujoco.mjtDisableBit
 FIELDS = ("balancing_error", "tip_velocity", "base_velocity", "angle")
@@ -61,9 +62,10 @@ def test_states_are_bit_identical_with_every_stage(model, amplitude):
     """The delayed random-gain controller, 4 realisations x 3 s, inside and beyond the
     small-angle regime: every recorded field the same bit for bit."""
     p = BalanceParams(beta=21.032)
-    kw = {"amplitude": amplitude, "fields": FIELDS, "threads": 2}
-    skipped = simulate_full(model, p, 3.0, 4, 11, **kw)
-    every = simulate_full(model, p, 3.0, 4, 11, backend=EveryStage, **kw)
+    scn = Scenario(model, p, 3.0, 4, 11, amplitude=amplitude)
+    kw = {"recording": Recording(fields=FIELDS), "execution": Execution(threads=2)}
+    skipped = simulate_full(scn, **kw)
+    every = simulate_full(scn, body=RigidBody(backend=EveryStage), **kw)
     for f in FIELDS:
         np.testing.assert_array_equal(skipped[f], every[f], err_msg=f)
 
@@ -71,6 +73,6 @@ def test_states_are_bit_identical_with_every_stage(model, amplitude):
 @pytest.mark.parametrize("model", ["single", "coupled"])
 def test_lambda1_is_bit_identical_with_every_stage(model):
     p = BalanceParams(beta=21.5)
-    a = lyapunov_full(model, p, 5.0, 2, seed=4)
-    b = lyapunov_full(model, p, 5.0, 2, seed=4, backend=EveryStage)
+    a = lyapunov_full(Scenario(model, p, 5.0, 2, 4))
+    b = lyapunov_full(Scenario(model, p, 5.0, 2, 4), body=RigidBody(backend=EveryStage))
     np.testing.assert_array_equal(a.per_realization, b.per_realization)

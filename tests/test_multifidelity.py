@@ -161,18 +161,24 @@ def _tiny_profile():
 
 
 def _series_args(profile, model="coupled"):
+    """series_model_checks' scenario and target, then its keywords."""
+    from cipcore.params import BalanceParams
+    from cipcore.scenario import EngineTarget, Scenario
     from validation.profiles import PAPER_BETA
 
-    return (model, PAPER_BETA[model], profile.amplitude, profile.series_duration,
-            profile.series_realizations, profile.seed_for("series", model), profile.decimate,
-            1, None, "mujoco", None)  # fmt: skip
+    scn = Scenario(model, BalanceParams(beta=PAPER_BETA[model]), profile.series_duration,
+                   profile.series_realizations, profile.seed_for("series", model),
+                   profile.amplitude)  # fmt: skip
+    return (scn, EngineTarget()), {"threads": 1, "nearest": None, "precision": "float64"}
 
 
 def test_mujoco_series_by_its_exact_twin():
     from validation.checks import agreement
 
     profile = _tiny_profile()
-    checks, data = agreement.multifidelity_series(_series_args(profile), profile, None, "float64")
+    checks, data = agreement.multifidelity_series(
+        *_series_args(profile)[0], profile, **_series_args(profile)[1]
+    )
     names = [c.name for c in checks]
     metrics = ("log10_rms", "spectrum_bands", "spectral_slopes", "stcc_peak_median",
                "stcc_fast_fraction", "log10_velocity_sd")  # fmt: skip
@@ -189,16 +195,20 @@ def test_mujoco_series_by_its_exact_twin():
 
 def test_uncorrelated_twin_falls_back_to_plain_sampling(monkeypatch):
     """A control that shares no noise with the engine (rho ~ 0) is refused."""
+    from dataclasses import replace
+
     from validation.checks import agreement
 
     real = agreement.run_twin
 
-    def other_noise(*args):
-        return real(*args[:5], args[5] + 1, *args[6:])
+    def other_noise(scenario, target, **kw):
+        return real(replace(scenario, seed=scenario.seed + 1), target, **kw)
 
     monkeypatch.setattr(agreement, "run_twin", other_noise)
     profile = _tiny_profile()
-    checks, data = agreement.series_model_checks(_series_args(profile), profile, None, "float64")
+    checks, data = agreement.series_model_checks(
+        *_series_args(profile)[0], profile, **_series_args(profile)[1]
+    )
     assert data["full"].shape[0] == profile.series_realizations  # the engine ran them all
     rms = next(c for c in checks if c.name == "agreement.log10_rms.coupled")
     assert "multifidelity" not in rms.values and rms.values["n"] == profile.series_realizations
@@ -213,4 +223,6 @@ def test_engine_realisations_out_of_range_is_one_line():
 
     profile = replace(_tiny_profile(), mf_engine_realizations=4)
     with pytest.raises(ParameterError, match=r"mf_engine_realizations must be 0 or in \[3, "):
-        agreement.multifidelity_series(_series_args(profile), profile, None, "float64")
+        agreement.multifidelity_series(
+            *_series_args(profile)[0], profile, **_series_args(profile)[1]
+        )

@@ -18,6 +18,7 @@ pytest.importorskip(
 
 from cip.engines.pinocchio import ENGINE, PinocchioRollout
 from cipcore.registry import register_engine
+from cipcore.scenario import EngineTarget
 from validation.checks.agreement import instrument_checks, model_file
 from validation.checks.refinement import (
     observable,
@@ -94,7 +95,11 @@ def test_tip_mass_error_fails_refinement() -> None:
 def test_one_step_late_control_fails_delay() -> None:
     """A control one step late (the backend wrapped by the catalogue's latency fault)."""
     checks = instrument_checks(
-        1, 1, engine=ENGINE.name, models=("single",), fault=make_fault("delay_late", 1)
+        1,
+        1,
+        target=EngineTarget(ENGINE.name),
+        models=("single",),
+        fault=make_fault("delay_late", 1),
     )
     by_name = {c.name: c for c in checks}
     delay = by_name["delay.single"]

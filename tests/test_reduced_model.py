@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import plan_recording
 from reduced import ArrayNoise, BalanceParams, GainNoise, ParameterError, simulate
 
@@ -16,7 +17,9 @@ P = BalanceParams(beta=20.0)
 def one_step(model: str, params: BalanceParams, xi: np.ndarray, stepper="semi-implicit"):
     """Simulate 2 steps and return the state after the first (sample 1)."""
     noise = ArrayNoise(xi)
-    return simulate(model, params, 2 * params.dt, noise=noise, amplitude=0.1, stepper=stepper)
+    return simulate(
+        Scenario(model, params, 2 * params.dt, amplitude=0.1), noise=noise, stepper=stepper
+    )
 
 
 def test_single_first_step_matches_equation_by_hand():
@@ -56,7 +59,7 @@ def test_coupled_first_step_matches_equation_by_hand():
 def test_gravity_sign_error_grows_without_feedback():
     """beta = 0: the stick falls to the side it leans, e grows like exp(sqrt(alpha) t)-ish."""
     p = BalanceParams(beta=0.0, nu=0.0, gamma=0.0)
-    tr = simulate("single", p, 1.0, amplitude=1e-3)
+    tr = simulate(Scenario("single", p, 1.0, amplitude=1e-3))
     e = tr["balancing_error"][0, :, 0]
     assert np.all(np.diff(e) > 0)
     # undamped, no feedback: x_T'' = alpha (x_T - 0): e(1) = cosh(sqrt(alpha)) * e(0)
@@ -65,7 +68,7 @@ def test_gravity_sign_error_grows_without_feedback():
 
 def test_feedback_pushes_base_towards_tip():
     p = BalanceParams(beta=20.0, nu=0.0)
-    tr = simulate("single", p, 0.01, amplitude=0.05)
+    tr = simulate(Scenario("single", p, 0.01, amplitude=0.05))
     assert tr["base_velocity"][0, -1, 0] > 0  # e > 0: the base accelerates to +x
 
 
@@ -77,7 +80,7 @@ def test_delay_is_exactly_tau():
     """
     p = BalanceParams(beta=10.0, nu=0.0, alpha=0.0, gamma=0.0, tau=0.05, dt=1e-3)
     d = p.delay_steps
-    tr = simulate("single", p, 3 * p.tau, amplitude=0.02)
+    tr = simulate(Scenario("single", p, 3 * p.tau, amplitude=0.02))
     vm = tr["base_velocity"][0, :, 0]
     acc = np.diff(vm) / p.dt
     e = tr["balancing_error"][0, :, 0]
@@ -90,7 +93,7 @@ def test_noise_uses_euler_maruyama_scaling():
     """One-step base velocity increments: variance (h beta nu e / sqrt(h))^2 = h (beta nu e)^2."""
     for dt in (1e-3, 2.5e-4):
         p = BalanceParams(beta=20.0, nu=0.6, alpha=0.0, gamma=0.0, dt=dt)
-        tr = simulate("single", p, 2 * dt, n_realizations=4000, seed=3, amplitude=1.0)
+        tr = simulate(Scenario("single", p, 2 * dt, 4000, 3, amplitude=1.0))
         dv = tr["base_velocity"][:, 1, 0]
         expected = dt * (20.0 * 0.6) ** 2
         # sample variance of 4000 Gaussians: relative s.e. sqrt(2/3999) = 2.2 %
@@ -101,9 +104,9 @@ def test_coupled_reduces_to_single_when_errors_equal():
     """Paper: eq. (6) coincides with eq. (2) if e1 = e2 (same noise in both)."""
     p = BalanceParams(beta=20.306)
     xi1 = GainNoise(7, 2, 1).draws(5000)
-    single = simulate("single", p, 5.0, noise=ArrayNoise(xi1), amplitude=0.01)
+    single = simulate(Scenario("single", p, 5.0, amplitude=0.01), noise=ArrayNoise(xi1))
     coupled = simulate(
-        "coupled", p, 5.0, noise=ArrayNoise(np.repeat(xi1, 2, axis=2)), amplitude=0.01
+        Scenario("coupled", p, 5.0, amplitude=0.01), noise=ArrayNoise(np.repeat(xi1, 2, axis=2))
     )
     for i in range(2):
         np.testing.assert_allclose(
@@ -113,12 +116,12 @@ def test_coupled_reduces_to_single_when_errors_equal():
             atol=1e-15,
         )
     # and with independent noise they differ
-    indep = simulate("coupled", p, 5.0, n_realizations=2, seed=7, amplitude=0.01)
+    indep = simulate(Scenario("coupled", p, 5.0, 2, 7, amplitude=0.01))
     assert not np.allclose(indep["balancing_error"][..., 0], indep["balancing_error"][..., 1])
 
 
 def test_rigid_rod_equal_tip_velocities_in_reduced_coupled():
-    tr = simulate("coupled", P, 1.0, n_realizations=2, seed=1)
+    tr = simulate(Scenario("coupled", P, 1.0, 2, 1))
     np.testing.assert_array_equal(tr["tip_velocity"][..., 0], tr["tip_velocity"][..., 1])
 
 
@@ -130,37 +133,41 @@ def test_rigid_rod_equal_tip_velocities_in_reduced_coupled():
 )
 def test_linear_in_the_initial_amplitude(scale, beta, seed):
     p = BalanceParams(beta=beta)
-    a = simulate("coupled", p, 0.5, n_realizations=2, seed=seed, amplitude=1.0)
-    b = simulate("coupled", p, 0.5, n_realizations=2, seed=seed, amplitude=scale)
+    a = simulate(Scenario("coupled", p, 0.5, 2, seed, amplitude=1.0))
+    b = simulate(Scenario("coupled", p, 0.5, 2, seed, amplitude=scale))
     np.testing.assert_allclose(
         b["balancing_error"], scale * a["balancing_error"], rtol=1e-9, atol=1e-300
     )
 
 
 def test_same_seed_same_numbers_whatever_threads_and_realisation_count():
-    a = simulate("coupled", P, 2.0, n_realizations=5, seed=11, threads=1)
-    b = simulate("coupled", P, 2.0, n_realizations=5, seed=11, threads=2)
-    c = simulate("coupled", P, 2.0, n_realizations=3, seed=11, threads=2)
+    a = simulate(Scenario("coupled", P, 2.0, 5, 11), execution=Execution(threads=1))
+    b = simulate(Scenario("coupled", P, 2.0, 5, 11), execution=Execution(threads=2))
+    c = simulate(Scenario("coupled", P, 2.0, 3, 11), execution=Execution(threads=2))
     for f in a.data:
         np.testing.assert_array_equal(a[f], b[f])
         np.testing.assert_array_equal(a[f][:3], c[f])
-    d = simulate("coupled", P, 2.0, n_realizations=5, seed=12, threads=2)
+    d = simulate(Scenario("coupled", P, 2.0, 5, 12), execution=Execution(threads=2))
     assert not np.array_equal(a["balancing_error"], d["balancing_error"])
 
 
 def test_chunking_does_not_change_results(monkeypatch):
     from cipcore import driver as _driver
 
-    a = simulate("single", P, 3.0, n_realizations=2, seed=5)
+    a = simulate(Scenario("single", P, 3.0, 2, 5))
     monkeypatch.setattr(_driver, "CHUNK_STEPS", 777)
-    b = simulate("single", P, 3.0, n_realizations=2, seed=5)
+    b = simulate(Scenario("single", P, 3.0, 2, 5))
     np.testing.assert_array_equal(a["balancing_error"], b["balancing_error"])
 
 
 def test_decimation_float32_and_schema():
-    tr = simulate("coupled", P, 1.0, n_realizations=3, decimate=10, dtype=np.float32,
-                  fields=("balancing_error", "tip_velocity"))  # fmt: skip
-    full = simulate("coupled", P, 1.0, n_realizations=3)
+    tr = simulate(
+        Scenario("coupled", P, 1.0, 3),
+        recording=Recording(
+            decimate=10, fields=("balancing_error", "tip_velocity"), dtype=np.float32
+        ),
+    )
+    full = simulate(Scenario("coupled", P, 1.0, 3))
     assert tr["balancing_error"].shape == (3, 100, 2)
     assert tr["balancing_error"].dtype == np.float32
     np.testing.assert_allclose(
@@ -173,14 +180,16 @@ def test_decimation_float32_and_schema():
 
 def test_paper_workload_fits_in_2_gib():
     # 100 realisations x 1200 s at 1 ms, balancing errors of both controllers in float32
-    n = plan_recording(1_200_000, 100, 2, 1, ("balancing_error",), np.float32, 2 * 1024**3)
-    assert n == 1_200_000
+    small = Recording(fields=("balancing_error",), dtype=np.float32, max_bytes=2 * 1024**3)
+    n, fields = plan_recording(1_200_000, 100, 2, small)
+    assert n == 1_200_000 and fields == ("balancing_error",)
+    big = Recording(fields=("balancing_error",) * 4, dtype=np.float64, max_bytes=2 * 1024**3)
     with pytest.raises(ParameterError, match="decimate"):
-        plan_recording(1_200_000, 100, 2, 1, ("balancing_error",) * 4, np.float64, 2 * 1024**3)
+        plan_recording(1_200_000, 100, 2, big)
 
 
 def test_npz_round_trip(tmp_path):
-    tr = simulate("single", P, 0.2, n_realizations=2)
+    tr = simulate(Scenario("single", P, 0.2, 2))
     path = tr.save_npz(tmp_path / "x.npz")
     back = type(tr).load_npz(path)
     np.testing.assert_array_equal(back["balancing_error"], tr["balancing_error"])
@@ -207,10 +216,10 @@ def test_bad_parameters_name_themselves(kwargs, name):
 
 def test_bad_run_arguments():
     with pytest.raises(ParameterError, match="realizations"):
-        simulate("single", P, 1.0, n_realizations=0)
+        simulate(Scenario("single", P, 1.0, 0))
     with pytest.raises(ParameterError, match="duration"):
-        simulate("single", P, 1.0005)
+        simulate(Scenario("single", P, 1.0005))
     with pytest.raises(ParameterError, match="model"):
-        simulate("triple", P, 1.0)
+        simulate(Scenario("triple", P, 1.0))
     with pytest.raises(ParameterError, match="amplitude"):
-        simulate("single", P, 1.0, amplitude=float("nan"))
+        simulate(Scenario("single", P, 1.0, amplitude=float("nan")))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cipcore.scenario import Execution, Scenario
 from cipcore.stats import mean_ci95
 from reduced import (
     BalanceParams,
@@ -53,7 +54,7 @@ def test_coupled_roots_are_union_of_sum_and_difference_modes():
 def test_noise_free_lyapunov_equals_rightmost_root(model, beta):
     """nu = 0: Benettin over the whole delay history gives the spectral abscissa."""
     p = BalanceParams(beta=beta, nu=0.0)
-    res = lyapunov(model, p, duration=300.0, n_realizations=2, seed=1)
+    res = lyapunov(Scenario(model, p, 300.0, 2, 1))
     exact_discrete = discrete_exponent(model, p)
     root = characteristic_roots(model, p).abscissa
     # the time-stepped map: equal up to the initial alignment of the tangent vector
@@ -78,8 +79,8 @@ def test_discrete_exponent_converges_to_root_as_dt_shrinks():
 def test_common_drift_does_not_bias_the_exponent():
     """Strongly stable errors give a clearly negative exponent (no creep towards 0)."""
     p = BalanceParams(beta=30.0, nu=0.0)
-    short = lyapunov("single", p, duration=50.0, n_realizations=1).lambda1
-    long = lyapunov("single", p, duration=400.0, n_realizations=1).lambda1
+    short = lyapunov(Scenario("single", p, 50.0, 1)).lambda1
+    long = lyapunov(Scenario("single", p, 400.0, 1)).lambda1
     assert long == pytest.approx(short, rel=0.02)
     assert long < -0.1
 
@@ -97,22 +98,24 @@ def test_noise_stabilises_and_coupling_shifts_threshold_fast():
     """Fast version of the paper check: at beta = 20.306 the single balancer sits on
     its threshold (lambda1 ~ 5e-4) while the coupled one is still unstable; at 19.3 both
     are unstable and at 21.8 both stable.  Noise-free, beta < alpha = 22 is unstable."""
-    kw = {"duration": 400.0, "n_realizations": 12, "seed": 2}
-    on = lyapunov("single", BalanceParams(beta=20.306), **kw)
+
+    def lam(model: str, beta: float):
+        return lyapunov(Scenario(model, BalanceParams(beta=beta), 400.0, 12, 2))
+
+    on = lam("single", 20.306)
     assert on.ci95[0] - 0.004 < 5e-4 < on.ci95[1] + 0.004
-    coupled = lyapunov("coupled", BalanceParams(beta=20.306), **kw)
+    coupled = lam("coupled", 20.306)
     assert coupled.ci95[0] > on.ci95[1]
-    assert lyapunov("single", BalanceParams(beta=19.3), **kw).ci95[0] > 0
-    assert lyapunov("coupled", BalanceParams(beta=21.8), **kw).ci95[1] < 0
+    assert lam("single", 19.3).ci95[0] > 0
+    assert lam("coupled", 21.8).ci95[1] < 0
     assert characteristic_roots("single", BalanceParams(beta=20.306, nu=0.0)).abscissa > 0
 
 
 def test_lyapunov_independent_of_dt_with_euler_maruyama_scaling():
     """With R = 1 + nu xi / sqrt(dt) the exponent converges as dt shrinks; without the
     1/sqrt(dt) the noise would vanish and lambda1 would climb to the noise-free 0.1."""
-    kw = {"duration": 200.0, "n_realizations": 12, "seed": 4}
-    a = lyapunov("single", BalanceParams(beta=19.0, dt=1e-3), **kw)
-    b = lyapunov("single", BalanceParams(beta=19.0, dt=5e-4), **kw)
+    a = lyapunov(Scenario("single", BalanceParams(beta=19.0, dt=1e-3), 200.0, 12, 4))
+    b = lyapunov(Scenario("single", BalanceParams(beta=19.0, dt=5e-4), 200.0, 12, 4))
     free = characteristic_roots("single", BalanceParams(beta=19.0, nu=0.0)).abscissa
     half = (a.ci95[1] - a.ci95[0] + b.ci95[1] - b.ci95[0]) / 2
     assert abs(a.lambda1 - b.lambda1) < half + 0.003
@@ -123,13 +126,14 @@ def test_lyapunov_independent_of_dt_with_euler_maruyama_scaling():
 def test_lyapunov_at_several_gains_equals_one_call_per_gain(model):
     """The draws made once for every gain give each gain's exponents bit for bit."""
     gains = [BalanceParams(beta=b) for b in (19.5, 20.3, 23.0)]
-    kw = {"duration": 30.0, "n_realizations": 5, "seed": 7, "threads": 2}
-    for one, many in zip([lyapunov(model, p, **kw) for p in gains],
-                         lyapunov_gains(model, gains, **kw), strict=True):  # fmt: skip
+    scn = Scenario(model, gains[0], 30.0, 5, 7)
+    kw = {"execution": Execution(threads=2)}
+    for one, many in zip([lyapunov(scn.with_params(p), **kw) for p in gains],
+                         lyapunov_gains(scn, gains, **kw), strict=True):  # fmt: skip
         assert np.array_equal(one.per_realization, many.per_realization)
         assert one.ci95 == many.ci95 and one.params == many.params
     with pytest.raises(ParameterError, match="share dt and tau"):
-        lyapunov_gains(model, [gains[0], BalanceParams(beta=20.0, tau=0.2)], **kw)
+        lyapunov_gains(scn, [gains[0], BalanceParams(beta=20.0, tau=0.2)], **kw)
 
 
 def test_bootstrap_fits_at_once_equal_one_fit_each():
@@ -150,11 +154,11 @@ def test_bootstrap_fits_at_once_equal_one_fit_each():
 
 def test_lyapunov_bad_input():
     with pytest.raises(ParameterError, match="transient"):
-        lyapunov("single", BalanceParams(beta=20.0), duration=10.0, transient=20.0)
+        lyapunov(Scenario("single", BalanceParams(beta=20.0), 10.0), transient=20.0)
     with pytest.raises(ParameterError, match="realizations"):
-        lyapunov("single", BalanceParams(beta=20.0), n_realizations=0)
+        lyapunov(Scenario("single", BalanceParams(beta=20.0), 200.0, realizations=0))
     with pytest.raises(ParameterError, match="beta_range"):
-        critical_gain("single", BalanceParams(beta=20.0), (21.0, 20.0))
+        critical_gain(Scenario("single", BalanceParams(beta=20.0), 500.0, 16), (21.0, 20.0))
 
 
 def test_paper_critical_gains_at_low_power():
@@ -162,9 +166,8 @@ def test_paper_critical_gains_at_low_power():
     beta* and the coupling's shift within 4 of their bootstrap standard deviations (about
     0.11 each) of the paper's.  Seeds 1-7 and 2011: at most 2.0 standard deviations off."""
     base = BalanceParams(beta=20.0)
-    kw = {"n_gains": 7, "duration": 500.0, "n_realizations": 16, "seed": 2011}
-    single = critical_gain("single", base, (19.8, 20.8), **kw)
-    coupled = critical_gain("coupled", base, (20.5, 21.5), **kw)
+    single = critical_gain(Scenario("single", base, 500.0, 16, 2011), (19.8, 20.8), n_gains=7)
+    coupled = critical_gain(Scenario("coupled", base, 500.0, 16, 2011), (20.5, 21.5), n_gains=7)
     assert single.beta_star == pytest.approx(20.306, abs=4 * single.std)
     assert coupled.beta_star == pytest.approx(21.032, abs=4 * coupled.std)
     shift_std = float(np.hypot(single.std, coupled.std))
@@ -177,9 +180,8 @@ def test_paper_critical_gains():
 
     Measured (this test's settings): 20.358 +- 0.033 and 21.068 +- 0.032 (about 20 s)."""
     base = BalanceParams(beta=20.0)
-    kw = {"n_gains": 7, "duration": 2000.0, "n_realizations": 32, "seed": 2011}
-    single = critical_gain("single", base, (19.8, 20.8), **kw)
-    coupled = critical_gain("coupled", base, (20.5, 21.5), **kw)
+    single = critical_gain(Scenario("single", base, 2000.0, 32, 2011), (19.8, 20.8), n_gains=7)
+    coupled = critical_gain(Scenario("coupled", base, 2000.0, 32, 2011), (20.5, 21.5), n_gains=7)
     assert single.beta_star == pytest.approx(20.306, abs=0.25)
     assert coupled.beta_star == pytest.approx(21.032, abs=0.25)
     assert coupled.beta_star - single.beta_star == pytest.approx(0.726, abs=0.15)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 import scipy.integrate
 
+from cipcore.scenario import EngineTarget
 from reduced.zoh import zoh_matrices, zoh_response
 from validation.checks import refinement
-from validation.checks.refinement import FLOOR, extrapolate, refine
+from validation.checks.refinement import FLOOR, RefinementSetting, extrapolate, refine
 
 
 def test_zoh_matches_a_fine_ode_solution_under_held_input():
@@ -64,7 +65,7 @@ def test_correct_steppers_converge_to_the_exact_solution(integrator, order):
     """MuJoCo's Euler and RK4 on the coupled file: the limit within a third of the floor,
     the observed order the stepper's."""
     eng, m = _mujoco(integrator)
-    r = refine(m, eng.rollout(), rod="soft", seed=1, n_realizations=2, chunk_time=0.1)
+    r = refine(m, eng.rollout(), rod="soft", setting=RefinementSetting(1, 2, 0.1))
     assert r.e0_interval[1] < FLOOR / 3, r
     assert abs(r.order - order) < 0.3, r
     assert r.passes(FLOOR, order - refinement.ORDER_SLACK)
@@ -78,7 +79,7 @@ def test_a_1e4_fault_moves_the_limit_beyond_the_floor(kind):
 
     eng, m = _mujoco()
     backend = make_fault(kind, 1e-4).backend(eng.rollout())
-    r = refine(m, backend, rod="soft", seed=1, n_realizations=2, chunk_time=0.1)
+    r = refine(m, backend, rod="soft", setting=RefinementSetting(1, 2, 0.1))
     assert r.e0 > 5 * FLOOR, r
     assert not r.passes(FLOOR, 0.7)
 
@@ -97,7 +98,7 @@ def test_a_substepping_engine_is_judged_by_refinement_and_passes(tmp_path):
     cmd = f"{sys.executable} examples/chunk_engine.py --substeps 2"
     try:
         register_engine("substeps-2", process_engine(cmd, "substeps-2"))
-        checks = {c.name: c for c in instrument_checks(1, 1, engine="substeps-2",
+        checks = {c.name: c for c in instrument_checks(1, 1, target=EngineTarget("substeps-2"),
                                                        models=("single",))}  # fmt: skip
     finally:
         close_idle_engines()

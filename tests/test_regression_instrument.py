@@ -10,10 +10,11 @@ import pytest
 
 from cip.mjcf_params import load_model_file, read_mapping, shipped_model_path
 from cip.model import CIPParams, build, mjcf
-from cip.runner import MujocoRollout
+from cip.runner import MujocoRollout, RigidBody
 from cip.simulate import simulate_full
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import get_engine
+from cipcore.scenario import Recording, Scenario
 from reduced.twin import TwinParams, simulate_twin
 from validation.checks.agreement import instrument_checks, measured_delay
 from validation.faults.catalogue import CATALOGUE, make_fault
@@ -27,9 +28,10 @@ def _pair(model, amplitude, twin_params=None, duration=2.0):
     mp = read_mapping(m)
     p = BalanceParams(beta=BETA[model])
     tw = twin_params or TwinParams(**mp.twin_terms())
-    kw = {"amplitude": amplitude, "fields": ("balancing_error",)}
-    full = simulate_full(model, p, duration, 2, 3, physical=mp.physical(), mj_model=m, **kw)
-    twin = simulate_twin(model, p, tw, duration, 2, 3, **kw)
+    scn = Scenario(model, p, duration, 2, 3, amplitude=amplitude)
+    rec = Recording(fields=("balancing_error",))
+    full = simulate_full(scn, body=RigidBody(mp.physical(), mj_model=m), recording=rec)
+    twin = simulate_twin(scn, tw, recording=rec)
     ef, et = full["balancing_error"], twin["balancing_error"]
     return np.linalg.norm(ef - et) / np.linalg.norm(et)
 

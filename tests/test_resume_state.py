@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import pytest
 
+from cipcore.scenario import EngineTarget
 from validation import run as harness
 from validation.profiles import PROFILES
-from validation.run import MODEL_FILE_STAGES, STAGES, run_validation
+from validation.run import MODEL_FILE_STAGES, STAGES, RunSetting, run_validation
 
 
 @pytest.fixture
@@ -45,8 +46,9 @@ def counted(monkeypatch):
 
 
 def _run(out, files=None, resume=True):
-    return run_validation(PROFILES["smoke"], out, progress=False, figures=True,
-                          resume=resume, model_files=files)  # fmt: skip
+    setting = RunSetting(PROFILES["smoke"], EngineTarget(files=files), figures=True,
+                         resume=resume, progress=False)  # fmt: skip
+    return run_validation(setting, out)
 
 
 def test_editing_an_mjcf_file_recomputes_exactly_the_stages_that_read_it(counted, tmp_path, capsys):
@@ -175,7 +177,7 @@ def test_an_unknown_paper_figure_name_is_refused(tmp_path):
     from validation.report import plots
 
     with pytest.raises(ValueError, match="no paper figure named"):
-        plots.paper_figures(tmp_path, only=["fig_nonesuch.png"])
+        plots.paper_figures(tmp_path, {}, only=["fig_nonesuch.png"])
 
 
 def test_an_interrupt_before_the_results_file_still_names_every_kept_stage(
@@ -224,7 +226,8 @@ def test_a_stage_failing_after_an_interrupt_signal_is_an_interruption(
     out = tmp_path / "out"
     expected = harness.RunInterrupted if signalled else harness.StageCrashed
     with pytest.raises(expected) as exc:
-        run_validation(PROFILES["smoke"], out, progress=False, interrupted=lambda: signalled)
+        setting = RunSetting(PROFILES["smoke"], progress=False)
+        run_validation(setting, out, interrupted=lambda: signalled)
     assert exc.value.kept == [STAGES[0]]
     written = json.loads((out / "results.json").read_text())
     assert written["stages_done"] == [STAGES[0]]

@@ -65,11 +65,11 @@ def test_engines_json_follows_its_schema(capsys, tmp_path):
 
 
 def test_sweep_outputs_follow_their_schemas(tmp_path):
-    from validation.sweeps import Study, run_sweep
+    from validation.sweeps import Study, SweepPool, run_sweep
 
     study = Study(name="schema", model="single", engine="reduced", metrics=("rms",),
                   realizations=2, duration=2.0, seed=1, grid={"beta": [20.0, 21.0]})  # fmt: skip
-    run_sweep(study, tmp_path, workers=1)
+    run_sweep(study, tmp_path, pool=SweepPool(workers=1))
     validate(json.loads((tmp_path / "study.json").read_text()), "sweep-study")
     points = list((tmp_path / "points").glob("*.json"))
     assert len(points) == 2

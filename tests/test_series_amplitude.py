@@ -16,6 +16,8 @@ from __future__ import annotations
 import pytest
 from helpers import engine_or_skip
 
+from cipcore.params import BalanceParams
+from cipcore.scenario import EngineTarget, Scenario
 from validation.checks.agreement import (
     compare_series,
     run_pair,
@@ -39,12 +41,17 @@ def _twin_metrics_status(amplitude: float) -> str:
     """twin.metrics of float64 MuJoCo's single series (quick profile's size) at ``amplitude``."""
     profile = PROFILES["quick"]
     model = "single"
-    args = (
-        model, PAPER_BETA[model], amplitude, profile.series_duration,
-        profile.series_realizations, profile.seed_for("series", model), profile.decimate, 1,
-    )  # fmt: skip
-    full, red = run_pair(*args)
-    twin = run_twin(*args)
+    scn = Scenario(
+        model,
+        BalanceParams(beta=PAPER_BETA[model]),
+        profile.series_duration,
+        profile.series_realizations,
+        profile.seed_for("series", model),
+        amplitude,
+    )
+    run = {"decimate": profile.decimate, "threads": 1}
+    full, red = run_pair(scn, EngineTarget(), **run)
+    twin = run_twin(scn, EngineTarget(), **run)
     m = [series_metrics(x, profile, 0.1, profile.spectrum_segment) for x in (full, red, twin)]
     (check,) = [c for c in compare_series(model, *m[:2], "", "", m[2]) if c.name.startswith("twin")]
     return check.status
@@ -74,7 +81,8 @@ def test_float32_engine_resolves_the_series_at_its_amplitude_only() -> None:
     model, window = "coupled", 2.0
 
     def distance(amp: float) -> float:
-        full, red = run_pair(model, PAPER_BETA[model], amp, window, 2, 7, 5, 1, engine=eng.name)
+        scn = Scenario(model, BalanceParams(beta=PAPER_BETA[model]), window, 2, 7, amp)
+        full, red = run_pair(scn, EngineTarget(eng.name), decimate=5, threads=1)
         return trajectory_distance(full, red, window)
 
     assert distance(profile.amplitude) > 0.01

@@ -14,7 +14,7 @@ import pytest
 import xarray as xr
 
 from reduced import ParameterError
-from validation.sweep import Study, evaluate_point, point_seed, run_sweep
+from validation.sweep import Study, SweepPool, evaluate_point, point_seed, run_sweep
 
 
 def small_study(**kw) -> Study:
@@ -35,7 +35,7 @@ def open_ds(path):
 
 def test_dataset_has_a_dimension_per_parameter_and_attributes(tmp_path):
     study = small_study(common_random_numbers=True)
-    rep = run_sweep(study, tmp_path / "a", workers=1)
+    rep = run_sweep(study, tmp_path / "a", pool=SweepPool(workers=1))
     ds = open_ds(rep.dataset_path)
     assert ds["rms"].dims == ("rod_length_ratio", "amplitude", "realization")
     assert ds.sizes == {"rod_length_ratio": 2, "amplitude": 2, "realization": 2}
@@ -54,8 +54,8 @@ def test_seeds_per_point_do_not_depend_on_order_or_workers(tmp_path):
     assert len(seeds) == 4
     crn = small_study(common_random_numbers=True)
     assert {point_seed(crn, p) for p in crn.points()} == {3}
-    a = open_ds(run_sweep(study, tmp_path / "one", workers=1).dataset_path)
-    b = open_ds(run_sweep(study, tmp_path / "two", workers=2).dataset_path)
+    a = open_ds(run_sweep(study, tmp_path / "one", pool=SweepPool(workers=1)).dataset_path)
+    b = open_ds(run_sweep(study, tmp_path / "two", pool=SweepPool(workers=2)).dataset_path)
     xr.testing.assert_identical(a, b)
 
 
@@ -93,7 +93,7 @@ beta = [20.0, 20.5, 21.0, 21.5, 22.0, 22.5, 23.0, 23.5, 24.0, 24.5, 25.0, 25.5]
     assert 1 <= before < 12, "the sweep must be killed halfway"
     res = subprocess.run(cmd, capture_output=True, text=True, check=True)
     assert f"{12 - before} points computed, {before} reused" in res.stdout
-    clean = run_sweep(Study.from_toml(study_file), tmp_path / "clean", workers=1)
+    clean = run_sweep(Study.from_toml(study_file), tmp_path / "clean", pool=SweepPool(workers=1))
     xr.testing.assert_identical(open_ds(out / "sweep.nc"), open_ds(clean.dataset_path))
 
 
@@ -107,8 +107,8 @@ def test_interrupted_in_process_keeps_finished_points(tmp_path):
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(study, tmp_path / "r", workers=1, on_point=stop_after_two)
-    rep = run_sweep(study, tmp_path / "r", workers=1)
+        run_sweep(study, tmp_path / "r", pool=SweepPool(workers=1), on_point=stop_after_two)
+    rep = run_sweep(study, tmp_path / "r", pool=SweepPool(workers=1))
     assert (rep.computed, rep.reused) == (1, 2)
 
 
@@ -118,10 +118,12 @@ def test_dask_local_cluster_gives_the_same_dataset(tmp_path, processes):
     of local workers."""
     distributed = pytest.importorskip("dask.distributed")
     study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0, 21.0, 22.0]})
-    local = open_ds(run_sweep(study, tmp_path / "local", workers=2).dataset_path)
+    local = open_ds(run_sweep(study, tmp_path / "local", pool=SweepPool(workers=2)).dataset_path)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=processes,
                                   dashboard_address=None) as cluster:  # fmt: skip
-        rep = run_sweep(study, tmp_path / "dask", scheduler=cluster.scheduler_address)
+        rep = run_sweep(
+            study, tmp_path / "dask", pool=SweepPool(scheduler=cluster.scheduler_address)
+        )
     xr.testing.assert_identical(local, open_ds(rep.dataset_path))
 
 
@@ -152,7 +154,7 @@ def test_string_parameters_and_report(tmp_path):
     from validation.sweep import write_sweep_report
 
     study = small_study(grid={"integrator": ["Euler", "RK4"]}, metrics=("agreement",))
-    run_sweep(study, tmp_path / "s", workers=1)
+    run_sweep(study, tmp_path / "s", pool=SweepPool(workers=1))
     report = write_sweep_report(study, tmp_path / "s").read_text()
     assert "| RK4 |" in report and (tmp_path / "s" / "sweep_agreement.png").exists()
 
@@ -207,7 +209,7 @@ def test_two_studies_raced_into_one_directory_never_mix(tmp_path, durations):
     names = {p.name.split("-")[0] for p in (out / "points").glob("*.json")}
     assert names == {win.fingerprint()}
     assert json.loads((out / "study.json").read_text())["name"] == winners[0]
-    clean = run_sweep(win, tmp_path / "clean", workers=1)
+    clean = run_sweep(win, tmp_path / "clean", pool=SweepPool(workers=1))
     xr.testing.assert_identical(open_ds(out / "sweep.nc"), open_ds(clean.dataset_path))
     assert not list(out.glob("*.tmp*")) and not list((out / "points").glob("*.tmp*"))
 
@@ -223,11 +225,13 @@ def test_locked_directory_fails_at_once_naming_the_holder(tmp_path):
         with pytest.raises(
             ParameterError, match=f"in use by another sweep \\(pid {os.getpid()} on"
         ):
-            run_sweep(study, where, workers=1)
+            run_sweep(study, where, pool=SweepPool(workers=1))
         assert time.perf_counter() - t < 5
-    rep = run_sweep(study, where, workers=1)  # released: the same study runs
+    rep = run_sweep(study, where, pool=SweepPool(workers=1))  # released: the same study runs
     assert rep.computed == 2
-    rep = run_sweep(study, where, workers=1)  # the same study again: reuses every point
+    rep = run_sweep(
+        study, where, pool=SweepPool(workers=1)
+    )  # the same study again: reuses every point
     assert (rep.computed, rep.reused) == (0, 2)
 
 
@@ -240,9 +244,9 @@ def test_point_files_are_keyed_by_the_study_not_only_the_point(tmp_path):
         Store(tmp_path / "a", a).path({"beta": 20.0}).name
         != Store(tmp_path / "b", b).path({"beta": 20.0}).name
     )
-    run_sweep(a, tmp_path / "c", workers=1)
+    run_sweep(a, tmp_path / "c", pool=SweepPool(workers=1))
     with pytest.raises(ParameterError, match="holds another study"):
-        run_sweep(b, tmp_path / "c", workers=1)
+        run_sweep(b, tmp_path / "c", pool=SweepPool(workers=1))
 
 
 def test_divergence_is_recorded_per_point(tmp_path):
@@ -250,7 +254,7 @@ def test_divergence_is_recorded_per_point(tmp_path):
     error leaves |e| < L within seconds; the point records when, beta = 21 does not."""
     study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [2.0, 21.0]},
                         duration=20.0, fixed={})  # fmt: skip
-    rep = run_sweep(study, tmp_path / "div", workers=1)
+    rep = run_sweep(study, tmp_path / "div", pool=SweepPool(workers=1))
     ds = open_ds(rep.dataset_path)
     assert list(ds["diverged"].values) == [1, 0]
     t = ds["divergence_time"].sel(beta=2.0).values

@@ -10,7 +10,7 @@ import pytest
 import xarray as xr
 
 from reduced import ParameterError
-from validation.sweep import Study, evaluate_point, run_sweep
+from validation.sweep import Study, SweepPool, evaluate_point, run_sweep
 from validation.sweeps.paired import paired_ci
 
 
@@ -29,7 +29,7 @@ def compare_study(**kw) -> Study:
 @pytest.fixture(scope="module")
 def compared(tmp_path_factory):
     out = tmp_path_factory.mktemp("cmp")
-    rep = run_sweep(compare_study(), out, workers=1)
+    rep = run_sweep(compare_study(), out, pool=SweepPool(workers=1))
     with xr.open_dataset(rep.dataset_path, engine="scipy") as ds:
         return out, ds.load()
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from validation.sweep import Study, run_sweep
+from validation.sweep import Study, SweepPool, run_sweep
 from validation.sweeps.schedule import WORKER_STARTUP_S, choose_workers
 
 
@@ -22,5 +22,5 @@ def test_default_sweep_of_cheap_points_runs_here_and_says_so(tmp_path):
     rep = run_sweep(study, tmp_path / "s")
     assert rep.computed == 3
     assert rep.schedule.startswith("in this process"), rep.schedule
-    asked = run_sweep(study, tmp_path / "t", workers=1)
+    asked = run_sweep(study, tmp_path / "t", pool=SweepPool(workers=1))
     assert asked.schedule == "1 worker process(es), as asked"

@@ -12,10 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cip.runner import RigidBody
 from cipcore.gpu import DEVICE_ENV, warp_unavailable
 from cipcore.models import get_model
 from cipcore.noise import GainNoise
 from cipcore.params import BalanceParams
+from cipcore.scenario import Execution, Recording, Scenario
 
 pytestmark = pytest.mark.warp
 
@@ -57,9 +59,10 @@ def test_reduced_gpu_kernel_equals_the_cpu_kernel(model, stepper, monkeypatch) -
     from reduced.simulate import simulate
 
     monkeypatch.setattr(gpu, "GPU_CHUNK_STEPS", 300)
-    kw = {"amplitude": 1e-3, "stepper": stepper, "decimate": 7}
-    ref = simulate(model, P, 1.25, 3, seed=3, **kw)
-    tr = gpu.simulate_gpu(model, P, 1.25, 3, seed=3, device="cpu", **kw)
+    scn = Scenario(model, P, 1.25, 3, 3, amplitude=1e-3)
+    kw = {"stepper": stepper, "recording": Recording(decimate=7)}
+    ref = simulate(scn, **kw)
+    tr = gpu.simulate_gpu(scn, device="cpu", **kw)
     assert tr.attrs["engine"] == "reduced-gpu"
     for f, x in ref.data.items():
         assert tr[f].shape == x.shape
@@ -69,9 +72,12 @@ def test_reduced_gpu_kernel_equals_the_cpu_kernel(model, stepper, monkeypatch) -
 def test_reduced_gpu_same_draws_for_any_batch_split() -> None:
     from reduced.gpu import simulate_gpu
 
-    whole = simulate_gpu("coupled", P, 0.5, 4, seed=11, amplitude=1e-3, device="cpu")
-    part = simulate_gpu("coupled", P, 0.5, noise=GainNoise(11, 2, 2, first_realization=2),
-                        amplitude=1e-3, device="cpu")  # fmt: skip
+    whole = simulate_gpu(Scenario("coupled", P, 0.5, 4, 11, amplitude=1e-3), device="cpu")
+    part = simulate_gpu(
+        Scenario("coupled", P, 0.5, amplitude=1e-3),
+        noise=GainNoise(11, 2, 2, first_realization=2),
+        device="cpu",
+    )
     assert np.array_equal(whole["balancing_error"][2:], part["balancing_error"])
 
 
@@ -107,9 +113,11 @@ def test_mujoco_warp_reproduces_mujoco_cpu_within_float32() -> None:
     (grown over 500 steps of delayed feedback) of float64 MuJoCo on the CPU."""
     from cip.simulate import simulate_full
 
-    ref = simulate_full("single", P, 0.5, 2, seed=7, amplitude=1e-3)
-    tr = simulate_full("single", P, 0.5, 2, seed=7, amplitude=1e-3, backend=_cpu_backend(),
-                       engine_name="mujoco-warp")  # fmt: skip
+    ref = simulate_full(Scenario("single", P, 0.5, 2, 7, amplitude=1e-3))
+    tr = simulate_full(
+        Scenario("single", P, 0.5, 2, 7, amplitude=1e-3),
+        body=RigidBody(backend=_cpu_backend(), name="mujoco-warp"),
+    )
     for f in ("balancing_error", "base_position", "angle"):
         assert _rel(tr[f], ref[f]) < 1e-5, f
     assert tr.attrs["diverged"] is None
@@ -120,9 +128,9 @@ def test_mujoco_warp_gives_the_same_numbers_on_one_thread_and_on_two() -> None:
     serialised (two threads parsing kernels at once failed on CPython < 3.11.8)."""
     from cip.simulate import simulate_full
 
-    kw = {"seed": 4, "amplitude": 1e-3, "backend": _cpu_backend()}
-    one = simulate_full("coupled", P, 0.2, 2, threads=1, **kw)
-    two = simulate_full("coupled", P, 0.2, 2, threads=2, **kw)
+    scn, body = Scenario("coupled", P, 0.2, 2, 4, amplitude=1e-3), RigidBody(backend=_cpu_backend())
+    one = simulate_full(scn, body=body, execution=Execution(threads=1))
+    two = simulate_full(scn, body=body, execution=Execution(threads=2))
     assert np.array_equal(one["balancing_error"], two["balancing_error"])
 
 
@@ -144,7 +152,9 @@ def test_control_on_the_device_equals_the_host_control(model) -> None:
     from cip.simulate import simulate_full
 
     n = 400
-    host = simulate_full(model, P, n * P.dt, 2, seed=5, amplitude=1e-3, backend=_cpu_backend())
+    host = simulate_full(
+        Scenario(model, P, n * P.dt, 2, 5, amplitude=1e-3), body=RigidBody(backend=_cpu_backend())
+    )
     dev = _device_control_errors(model, n, 1e-3, 5)
     assert dev.shape == host["balancing_error"].shape
     assert _rel(dev, host["balancing_error"]) < 1e-5

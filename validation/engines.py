@@ -121,6 +121,9 @@ def validate_engine(
     ``selftest`` also injects the fault catalogue at a rigid-body engine's boundary
     (:func:`validation.faults.selftest.run_selftest`, seed 1, 2 realisations) and reports
     how many applicable faults its checks flag.
+
+    The function is long because it runs the agreement stages in order and keeps every
+    finished stage when an engine fails.
     """
     prof = _profile(profile, seed)
     reason = availability(name)

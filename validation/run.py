@@ -46,6 +46,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +56,7 @@ from tqdm.auto import tqdm
 
 from cipcore.atomic import WriteError, write_bytes
 from cipcore.params import BalanceParams, ParameterError
+from cipcore.scenario import EngineTarget
 from validation.checks import agreement
 from validation.checks.stats import FAIL, INCONCLUSIVE, NOT_APPLICABLE, PASS
 from validation.cli.checklog import with_limit
@@ -253,21 +255,42 @@ def conformance_and_anchors(profile: Profile, model_files: dict[str, str] | None
     )
 
 
-def run_validation(
-    profile: Profile, out_dir: Path, workers: int | None = None, progress: bool = True,
-    figures: bool = True, resume: bool = False,
-    on_stage: Callable[[str, float, bool], None] | None = None,
-    model_files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
-    interrupted: Callable[[], bool] | None = None,
-) -> dict[str, Any]:  # fmt: skip
-    """Run every stage; returns the results dictionary written to results.json.
+@dataclass(frozen=True)
+class RunSetting:
+    """Everything a ``cip-validate run`` is told: one value from the command line on.
 
-    ``model_files`` maps "single" / "coupled" to a user's MJCF (``--mjcf``) run
-    instead of the shipped ``models/cip_<model>.xml``; ``engine`` is the
-    rigid-body engine validated and ``integrator`` the MuJoCo integrator its
-    model file is stepped with (default: the file's).
+    Attributes
+    ----------
+    profile : the sizes, gains and seeds (:mod:`validation.profiles`).
+    target : the rigid-body engine validated, the MuJoCo integrator its model files
+        are stepped with (default: the files') and the user's model files
+        (``--mjcf``) run instead of the shipped ``models/cip_<model>.xml``.
+    workers : worker threads (None: every core); the numbers do not depend on it.
+    figures : draw the figures and clips.
+    resume : reuse the stages a previous run in the same directory saved.
+    progress : show a progress bar.
+    """
+
+    profile: Profile
+    target: EngineTarget = EngineTarget()
+    workers: int | None = None
+    figures: bool = True
+    resume: bool = False
+    progress: bool = True
+
+
+def run_validation(
+    setting: RunSetting,
+    out_dir: Path,
+    *,
+    on_stage: Callable[[str, float, bool], None] | None = None,
+    interrupted: Callable[[], bool] | None = None,
+) -> dict[str, Any]:
+    """Run every stage of ``setting``; returns the results dictionary written to results.json.
+
+    The function is long for a reason: it is the one place that orders the stages,
+    saves each as it finishes and turns every way a run can end (done, interrupted,
+    an engine crash, bad input, an unwritable output) into what is kept on disk.
 
     After each stage, ``DIR/results.json`` holds everything finished so far
     (``"partial": true``); ``on_stage(name, seconds, reused)`` is called then.
@@ -283,6 +306,14 @@ def run_validation(
     ``if __name__ == "__main__":`` guard: the rod-length stage's process pool
     (forkserver) imports the main module in its workers.
     """
+    profile, workers, figures, resume = (
+        setting.profile,
+        setting.workers,
+        setting.figures,
+        setting.resume,
+    )
+    model_files = dict(setting.target.files) if setting.target.files else None
+    engine, integrator = setting.target.engine, setting.target.integrator
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -292,7 +323,7 @@ def run_validation(
     engine_record: dict[str, Any] | None = None  # read with the first stage's results
     file_inputs = model_file_inputs(model_files)
     target = {"files": model_files, "engine": engine, "integrator": integrator}
-    bar = tqdm(STAGES, desc="cip-validate", disable=not progress, unit="stage")
+    bar = tqdm(STAGES, desc="cip-validate", disable=not setting.progress, unit="stage")
     timings: dict[str, float] = {}
     cpu: dict[str, float] = {}  # CPU seconds per stage (this process and reaped children)
     done: list[str] = []
@@ -616,7 +647,7 @@ def _figures(
             # matplotlib: imported by runs that draw figures only
             from validation.report import plots
 
-            files = plots.paper_figures(out_dir, **_paper_figure_data(state))
+            files = plots.paper_figures(out_dir, _paper_figure_data(state))
             files += rod_figures(out_dir, rod_ds)
         else:  # drawn beside the last stages, in the order above (both jobs sent)
             files = finish_paper_figures(drawing)

@@ -13,6 +13,7 @@ from validation.sweeps import (
     DirectoryLock,
     Store,
     Study,
+    SweepPool,
     SweepReport,
     assemble,
     default_studies_dir,
@@ -30,7 +31,7 @@ from validation.sweeps import (
 
 __all__ = [
     "LABELS", "METRICS", "SETTINGS", "STCC_MIN_DURATION", "DirectoryLock", "Store", "Study",
-    "SweepReport", "assemble", "default_studies_dir", "evaluate_point", "mean_ci", "parse_grid",
-    "plot_metric", "point_key", "point_params", "point_seed", "run_sweep", "write_dataset",
-    "write_sweep_report",
+    "SweepPool", "SweepReport", "assemble", "default_studies_dir", "evaluate_point", "mean_ci",
+    "parse_grid", "plot_metric", "point_key", "point_params", "point_seed", "run_sweep",
+    "write_dataset", "write_sweep_report",
 ]  # fmt: skip

@@ -21,7 +21,7 @@ from cip.linearize import linearize
 from cip.lyapunov import lyapunov_full
 from cip.mjcf_params import INTEGRATOR_NAMES, ModelMapping
 from cip.model import CIPParams
-from cip.runner import CIPRunner, MujocoRollout, RolloutBackend
+from cip.runner import CIPRunner, MujocoRollout, RigidBody, RolloutBackend
 from cip.simulate import simulate_full
 from cip.workers import ProcessBlocks
 from cipcore.driver import default_threads
@@ -30,15 +30,26 @@ from cipcore.engine import (
     LyapunovOptions,
     SimulateOptions,
     check_options,
-    keyword_options,
 )
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
+from cipcore.scenario import engine_call, flat_options
 from cipcore.schema import Trajectory
 
-#: simulate_full's options that the engine sets itself
-EXCLUDED = ("engine_name",)
+#: the flat options of the engine's methods that name the rigid body (cip.runner.RigidBody)
+BODY_OPTIONS = ("physical", "backend", "mj_model")
+
+
+def _with_body(options: dict[str, Any], name: str) -> dict[str, Any]:
+    """Flat engine options with the rigid body's grouped into ``body=`` (named ``name``)."""
+    body = {k: options.pop(k) for k in BODY_OPTIONS if k in options}
+    return {**options, "body": RigidBody(name=name, **body)}
+
+
+def _body_options(fn: Callable[..., Any], scenario_options: tuple[str, ...]) -> frozenset[str]:
+    """The flat option names of an engine method whose work ``fn`` does."""
+    return (flat_options(fn, scenario_options) - {"body"}) | set(BODY_OPTIONS)
 
 
 #: realisation-steps below which a GIL-holding engine steps in this process: starting two
@@ -204,13 +215,12 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Unpack[SimulateOptions],
     ) -> Trajectory:
-        check_options(self.name, "simulate", options, keyword_options(simulate_full, EXCLUDED))
+        check_options(self.name, "simulate", options, _body_options(simulate_full, ("amplitude",)))
         n = getattr(options.get("noise"), "n_realizations", n_realizations)
         self._place_threads(options, n * round(duration / params.dt))
-        tr = simulate_full(
-            get_model(model).name, params, duration, n_realizations, seed,
-            engine_name=self.name, **options,
-        )  # fmt: skip
+        call = (get_model(model).name, params, duration, n_realizations, seed)
+        scenario, grouped = engine_call(call, options)
+        tr = simulate_full(scenario, **_with_body(grouped, self.name))
         if not self.integrators:  # the engine's own stepper ran, whatever the file says
             tr.attrs["stepper"] = self.capabilities.integrator
         return tr
@@ -224,11 +234,11 @@ class RigidBodyEngine:
         seed: int = 0,
         **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult:
-        check_options(self.name, "lyapunov", options, keyword_options(lyapunov_full))
+        check_options(self.name, "lyapunov", options, _body_options(lyapunov_full, ()))
         self._place_threads(options, 2 * n_realizations * round(duration / params.dt))
-        return lyapunov_full(
-            get_model(model).name, params, duration, n_realizations, seed, **options
-        )
+        call = (get_model(model).name, params, duration, n_realizations, seed)
+        scenario, grouped = engine_call(call, options)
+        return lyapunov_full(scenario, **_with_body(grouped, self.name))
 
     def linearize(self, model: BalanceModel | str, physical: CIPParams | None = None):
         """The engine's linearisation about upright beside the reduced model's

@@ -20,6 +20,7 @@ from cip.simulate import DivergenceWarning
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
+from cipcore.scenario import EngineTarget, Execution, Recording, Scenario
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 from validation.checks import metrics, refinement
@@ -61,16 +62,13 @@ def lyapunov_checks(
         for beta in gains:
             p = BalanceParams(beta=beta)
             seed = profile.seed_for("lyapunov", model, beta)
-            kw = {
-                "duration": profile.lyapunov_duration,
-                "n_realizations": profile.lyapunov_realizations,
-                "seed": seed,
-                "threads": threads,
-            }
-            red = lyapunov(model, p, **kw)
+            scn = Scenario(model, p, profile.lyapunov_duration, profile.lyapunov_realizations,
+                           seed)  # fmt: skip
+            red = lyapunov(scn, execution=Execution(threads=threads))
             full = rigid_engine(engine).lyapunov(
-                model, p, physical=phys, mj_model=m, epsilon=epsilon, **kw
-            )
+                model, p, scn.duration, scn.realizations, seed, physical=phys, mj_model=m,
+                epsilon=epsilon, threads=threads,
+            )  # fmt: skip
             status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
             rows.append(
                 {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
@@ -151,67 +149,39 @@ def trajectory_distance(
 
 
 def run_pair(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    scenario: Scenario, target: EngineTarget, *, decimate: int, threads: int | None
 ) -> tuple[Trajectory, Trajectory]:
-    """Both engines, same parameters and seed: (full, reduced).
+    """Both engines, same scenario (same parameters and seed): (full, reduced).
 
-    The full model is the model file (``files[model]``, a user's ``--mjcf``, or
-    the shipped ``models/cip_<model>.xml``, stepped with ``integrator`` where
-    given), its physical parameters read from it, run by ``engine``.
+    The full model is the model file (``target.files[model]``, a user's ``--mjcf``,
+    or the shipped ``models/cip_<model>.xml``, stepped with ``target.integrator``
+    where given), its physical parameters read from it, run by ``target.engine``;
+    every ``decimate``-th step is recorded.
     """
-    full = run_full(model, beta, amplitude, duration, n, seed, decimate, threads, files, engine,
-                    integrator)  # fmt: skip
-    return full, run_reduced(model, beta, amplitude, duration, n, seed, decimate, threads)
+    run = {"decimate": decimate, "threads": threads}
+    return run_full(scenario, target, **run), run_reduced(scenario, **run)
 
 
 def run_full(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    scenario: Scenario, target: EngineTarget, *, decimate: int, threads: int | None
 ) -> Trajectory:
-    """The engine's half of :func:`run_pair` (the model file run by ``engine``)."""
+    """The engine's half of :func:`run_pair` (the model file run by ``target.engine``)."""
     from cip.mjcf_params import read_mapping
 
-    p = BalanceParams(beta=beta)
-    kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
-    m = model_file(model, files, integrator)
-    return rigid_engine(engine).simulate(
-        model, p, duration, n, seed, fields=(*SERIES_FIELDS, "angle"),
-        physical=read_mapping(m).physical(), mj_model=m, **kw,
+    model = scenario.model
+    m = model_file(model, target.files, target.integrator)
+    kw = {"amplitude": scenario.amplitude, "decimate": decimate, "threads": threads}
+    return rigid_engine(target.engine).simulate(
+        model, scenario.params, scenario.duration, scenario.realizations, scenario.seed,
+        fields=(*SERIES_FIELDS, "angle"), physical=read_mapping(m).physical(), mj_model=m,
+        **kw,
     )  # fmt: skip
 
 
-def run_reduced(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-) -> Trajectory:
+def run_reduced(scenario: Scenario, *, decimate: int, threads: int | None) -> Trajectory:
     """The reduced model's half of :func:`run_pair` (the same noise streams)."""
-    kw = {"amplitude": amplitude, "decimate": decimate, "threads": threads}
-    return simulate(model, BalanceParams(beta=beta), duration, n, seed, fields=SERIES_FIELDS, **kw)
+    rec = Recording(decimate=decimate, fields=SERIES_FIELDS)
+    return simulate(scenario, recording=rec, execution=Execution(threads=threads))
 
 
 #: Floor of the full-vs-twin metric differences (log10 units, seconds or fractions):
@@ -227,28 +197,16 @@ PAIRED_RULE = (
 
 
 def run_twin(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    scenario: Scenario, target: EngineTarget, *, decimate: int, threads: int | None
 ) -> Trajectory:
     """The engine's exact twin of the model file under the same noise as :func:`run_pair`."""
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin
 
-    mapping = read_mapping(model_file(model, files, integrator))
-    tw = TwinParams(**rigid_engine(engine).twin_terms(mapping))
-    return simulate_twin(
-        model, BalanceParams(beta=beta), tw, duration, n, seed, amplitude=amplitude,
-        decimate=decimate, fields=SERIES_FIELDS, threads=threads,
-    )  # fmt: skip
+    mapping = read_mapping(model_file(scenario.model, target.files, target.integrator))
+    tw = TwinParams(**rigid_engine(target.engine).twin_terms(mapping))
+    rec = Recording(decimate=decimate, fields=SERIES_FIELDS)
+    return simulate_twin(scenario, tw, recording=rec, execution=Execution(threads=threads))
 
 
 def compare_series(
@@ -267,6 +225,9 @@ def compare_series(
     also checked against the twin (:func:`validation.checks.stats.paired_shift`).
     ``me`` are the envelope twin's (:func:`validation.checks.conformance.envelope_twin_terms`):
     the known terms enter a margin only up to theirs.
+
+    The function is long because it is the table of the series checks, one entry per metric,
+    each with its rule said in place.
     """
     from validation.checks.conformance import BOUNDED_RULE, bounded_margin
 
@@ -457,8 +418,8 @@ def series_checks(
     # the direct checks first (their own seed): they decide each model's tier, which says
     # whether the twin's metrics judge the engine (listed after the series checks)
     direct = instrument_checks(
-        profile.seed_for("twin"), profile.series_realizations, threads, files=files,
-        engine=engine, integrator=integrator,
+        profile.seed_for("twin"), profile.series_realizations, threads,
+        target=EngineTarget(engine, integrator, files),
     )  # fmt: skip
     by_refinement = {
         c.name.rsplit(".", 1)[1]
@@ -476,47 +437,62 @@ def series_checks(
     amplitude = profile.series_amplitude(precision)
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("series", model)
-        args = (
-            model, beta, amplitude, profile.series_duration,
-            profile.series_realizations, seed, profile.decimate, threads, files, engine,
-            integrator,
+        scn = Scenario(model, BalanceParams(beta=beta), profile.series_duration,
+                       profile.series_realizations, seed, amplitude)  # fmt: skip
+        got = series_model_checks(
+            scn, EngineTarget(engine, integrator, files), profile, threads=threads,
+            nearest=nearest.get(model) if model in by_refinement else None, precision=precision,
         )  # fmt: skip
-        got = series_model_checks(args, profile, nearest.get(model) if model in by_refinement
-                                  else None, precision)  # fmt: skip
         checks += got[0]
         data[model] = got[1]
     return checks + direct, data
 
 
 def series_model_checks(
-    args: tuple, profile: Profile, nearest: str | None, precision: str
+    scenario: Scenario,
+    target: EngineTarget,
+    profile: Profile,
+    *,
+    threads: int | None,
+    nearest: str | None,
+    precision: str,
 ) -> tuple[list[Check], dict]:
     """One model's time-series checks (:func:`series_checks`): full vs reduced and full vs
     its twin, by the multifidelity estimator where the profile switches it on and it pays
     (:func:`multifidelity_series`), else plainly.
 
-    ``args``: :func:`run_pair`'s; ``nearest``: the MuJoCo integrator of the nearest twin
+    ``scenario`` and ``target`` as :func:`run_pair`'s, every ``profile.decimate``-th
+    step recorded on ``threads``; ``nearest``: the MuJoCo integrator of the nearest twin
     for an engine judged by refinement (None: the engine's own exact twin).  Returns
     (checks, the stage's data for the model).
     """
     from validation.checks.conformance import run_envelope_twin
 
-    model, beta, amplitude = args[:3]
-    seed, files, engine, integrator = args[5], *args[8:]
+    model, beta, amplitude = scenario.model, scenario.params.beta, scenario.amplitude
+    seed, files, engine, integrator = (
+        scenario.seed,
+        target.files,
+        target.engine,
+        target.integrator,
+    )
     fallback = ""
     if profile.mf_engine_realizations:  # a str: the twin does not pay, plain sampling
-        got = multifidelity_series(args, profile, nearest, precision)
+        got = multifidelity_series(
+            scenario, target, profile, threads=threads, nearest=nearest, precision=precision
+        )
         if not isinstance(got, str):
             return got
         fallback = f"; {got}"
-    full, red = run_pair(*args)
+    run = {"decimate": profile.decimate, "threads": threads}
+    full, red = run_pair(scenario, target, **run)
     if nearest:
-        twin = run_twin(*args[:9], "mujoco", nearest)
+        twin = run_twin(scenario, EngineTarget("mujoco", nearest, files), **run)
         env_integrator = nearest
     else:
-        twin = run_twin(*args)
+        twin = run_twin(scenario, target, **run)
         env_integrator = twin_integrator(model, files, engine, integrator)
-    env = run_envelope_twin(*args[:8], fields=SERIES_FIELDS, integrator=env_integrator)
+    rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
+    env = run_envelope_twin(scenario, recording=rec, threads=threads, integrator=env_integrator)
     mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
     mr = series_metrics(red, profile, 0.1, profile.spectrum_segment)
     mt = series_metrics(twin, profile, 0.1, profile.spectrum_segment)
@@ -760,11 +736,18 @@ def compare_series_mf(
 
 
 def multifidelity_series(
-    args: tuple, profile: Profile, nearest: str | None, precision: str
+    scenario: Scenario,
+    target: EngineTarget,
+    profile: Profile,
+    *,
+    threads: int | None,
+    nearest: str | None,
+    precision: str,
 ) -> tuple[list[Check], dict] | str:
     """One model's series checks with the engine on ``profile.mf_engine_realizations``.
 
-    ``args``: :func:`run_pair`'s (``n`` = the plain allocation, series_realizations);
+    ``scenario``, ``target``, ``threads``: :func:`series_model_checks`' (the scenario's
+    realisations = the plain allocation, series_realizations);
     ``nearest``: the MuJoCo integrator of the nearest twin for an engine judged by
     refinement (None: the engine's own exact twin).  The twin, the reduced model and
     the envelope twin run ``profile.mf_twin_realizations`` under the same noise (the
@@ -778,20 +761,24 @@ def multifidelity_series(
     from validation.checks import multifidelity as mfe
     from validation.checks.conformance import run_envelope_twin
 
-    model, beta, amplitude, duration, n_plain, seed = args[:6]
+    model, beta, amplitude = scenario.model, scenario.params.beta, scenario.amplitude
+    duration, n_plain, seed = scenario.duration, scenario.realizations, scenario.seed
     n, m = profile.mf_engine_realizations, max(profile.mf_twin_realizations, n_plain)
     if not mfe.MIN_PAIRED <= n < n_plain:
         raise ParameterError(f"mf_engine_realizations must be 0 or in [{mfe.MIN_PAIRED}, "
                              f"series_realizations = {n_plain}), got {n}")  # fmt: skip
-    cheap = (*args[:4], m, *args[5:])
+    cheap = replace(scenario, realizations=m)
+    run = {"decimate": profile.decimate, "threads": threads}
     t0 = time.perf_counter()
-    full = run_full(*args[:4], n, *args[5:])
+    full = run_full(replace(scenario, realizations=n), target, **run)
     t1 = time.perf_counter()
-    red = run_reduced(*cheap[:8])
-    twin = run_twin(*cheap[:9], "mujoco", nearest) if nearest else run_twin(*cheap)
+    red = run_reduced(cheap, **run)
+    twin_target = EngineTarget("mujoco", nearest, target.files) if nearest else target
+    twin = run_twin(cheap, twin_target, **run)
     w = (t1 - t0) / n / max((time.perf_counter() - t1) / m, 1e-9)
-    stepper = nearest or twin_integrator(model, *args[8:])
-    env = run_envelope_twin(*cheap[:8], fields=SERIES_FIELDS, integrator=stepper)
+    stepper = nearest or twin_integrator(model, target.files, target.engine, target.integrator)
+    rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
+    env = run_envelope_twin(cheap, recording=rec, threads=threads, integrator=stepper)
     runs = {"full": full, "reduced": red, "twin": twin, "envelope": env,
             "reduced_n": head(red, n), "twin_n": head(twin, n)}  # fmt: skip
     ms = {k: series_metrics(tr, profile, 0.1, profile.spectrum_segment) for k, tr in runs.items()}
@@ -841,6 +828,9 @@ def amplitude_scan(
     the regime while the reference stays inside (a joint limit, a contact) is
     listed and fails ``agreement.small_angle_regime``.  The margins' known terms
     are bounded by the envelope twin (:mod:`validation.checks.conformance`).
+
+    The function is long because each amplitude's row and its verdicts are built from the
+    same four runs.
     """
     from validation.checks.conformance import bounded_margin, run_envelope_twin
     from validation.checks.divergence import pendulum_length
@@ -852,15 +842,14 @@ def amplitude_scan(
         seed = profile.seed_for("scan", model)
         stepper = twin_integrator(model, files, engine, integrator)
         for amp in profile.scan_amplitudes:
-            args = (
-                model, beta, amp, profile.scan_duration, profile.scan_realizations, seed,
-                profile.decimate, threads, files, engine, integrator,
-            )  # fmt: skip
-            full, red = run_pair(*args)
-            twin = run_twin(*args)
-            env = run_envelope_twin(
-                *args[:8], fields=("balancing_error",), integrator=stepper
-            )  # fmt: skip
+            scn = Scenario(model, BalanceParams(beta=beta), profile.scan_duration,
+                           profile.scan_realizations, seed, amp)  # fmt: skip
+            target = EngineTarget(engine, integrator, files)
+            run = {"decimate": profile.decimate, "threads": threads}
+            full, red = run_pair(scn, target, **run)
+            twin = run_twin(scn, target, **run)
+            rec = Recording(decimate=profile.decimate, fields=("balancing_error",))
+            env = run_envelope_twin(scn, recording=rec, threads=threads, integrator=stepper)
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
             et, ee = twin["balancing_error"], env["balancing_error"]
             rel = trajectory_distance(full, red)
@@ -976,6 +965,9 @@ def rod_length_study(
     are compared with those at l = L by the paired-equivalence rule.  The rows
     report every metric per (l/L, amplitude); beyond the linear regime the
     rigid rod's geometry is free to matter, and the rows show where it does.
+
+    The function is long because it maps the study's result onto the checks and the figure's
+    data in one place.
     """
     import json
     import os
@@ -984,7 +976,7 @@ def rod_length_study(
 
     import xarray as xr
 
-    from validation.sweep import Study, default_studies_dir, mean_ci, run_sweep
+    from validation.sweep import Study, SweepPool, default_studies_dir, mean_ci, run_sweep
 
     base = Study.from_toml(default_studies_dir() / "rod_length.toml").as_dict()
     base.update(profile.rod_study)
@@ -999,7 +991,9 @@ def rod_length_study(
     # in this process, its realisations on the run's threads: a point takes well under a
     # second at the quick profile, less than a worker process's start-up (measured: the
     # stage's wall time was 2.3x its CPU time with two worker processes)
-    rep = run_sweep(study, where, workers=1, point_threads=workers or os.cpu_count() or 1)
+    rep = run_sweep(
+        study, where, pool=SweepPool(workers=1, point_threads=workers or os.cpu_count() or 1)
+    )
     with xr.open_dataset(rep.dataset_path, engine="scipy") as f:
         ds = f.load()
     lengths = ds["rod_length_ratio"].values
@@ -1143,21 +1137,24 @@ def instrument_checks(
     n_realizations: int,
     threads: int | None = None,
     *,
-    files: dict[str, str] | None = None,
+    target: EngineTarget = EngineTarget(),
     fault=None,
     models: tuple[str, ...] = MODEL_NAMES,
-    engine: str = "mujoco",
-    integrator: str | None = None,
 ) -> list[Check]:
     """Full model vs the engine's exact twin, the delay, the rod, the declared model.
 
-    ``files`` maps a model to a user's MJCF (default: the shipped files);
-    ``fault`` a :class:`validation.faults.catalogue.Fault` injected into the engine only;
-    ``engine`` the rigid-body engine (its twin, tolerances and rollout backend);
-    ``integrator`` the MuJoCo integrator run instead of the file's.
+    ``target`` names the rigid-body engine (its twin, tolerances and rollout
+    backend), the MuJoCo integrator run instead of the file's and the user's model
+    files (default: the shipped files); ``fault`` a
+    :class:`validation.faults.catalogue.Fault` injected into the engine only.
+
+    The function is long because the direct checks share one run per model (the engine, its
+    twin, the delay probe) and are built together.
     """
     from cip.mjcf_params import read_mapping
     from reduced.twin import TwinParams, simulate_twin
+
+    files, engine, integrator = target.files, target.engine, target.integrator
 
     eng = rigid_engine(engine)
     caps = eng.capabilities
@@ -1219,14 +1216,10 @@ def instrument_checks(
                 **kw,
             )
         twin = simulate_twin(
-            model,
-            p,
+            Scenario(model, p, TWIN_WINDOW, n_realizations, seed, TWIN_AMPLITUDE),
             twin_p,
-            TWIN_WINDOW,
-            n_realizations,
-            seed,
-            fields=("balancing_error", "tip_position"),
-            **kw,
+            recording=Recording(fields=("balancing_error", "tip_position")),
+            execution=Execution(threads=threads),
         )
         ef, et = full["balancing_error"], twin["balancing_error"]
         complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
@@ -1255,9 +1248,7 @@ def instrument_checks(
         if mp.n_controllers == 2:
             sf = full["tip_position"][..., 0] - full["tip_position"][..., 1]
             st = twin["tip_position"][..., 0] - twin["tip_position"][..., 1]
-            rod = rod_check(
-                model, sf, st, ef, twin_p, caps.rod, eng.rod_tolerance, complete, details
-            )
+            rod = rod_check(model, sf, st, ef, twin_p, (caps.rod, eng.rod_tolerance), details)
             checks.append(rod if judged == refinement.TWIN else not_applicable(rod))
         if caps.precision == "float32" and judged == refinement.TWIN:
             checks.append(refinement.not_run(model, refinement.FLOAT32_RULE))

@@ -70,6 +70,7 @@ import numpy as np
 
 from cip.conformance import physical_content
 from cipcore.params import BalanceParams
+from cipcore.scenario import Execution, Recording, Scenario
 from validation.checks.stats import FAIL, PASS, Check, t_half_width
 
 MASS_RATIO_MAX = 1e-3
@@ -98,6 +99,8 @@ def spec_items(m: mujoco.MjModel, mapping, params: BalanceParams) -> dict[str, d
 
     ``mapping`` is the file's :class:`cip.mjcf_params.ModelMapping`, ``params``
     the controller's (alpha, gamma, dt).
+
+    The function is long because it is the specification's table, one item per clause.
     """
     nc = mapping.n_controllers
     c = physical_content(m, nc)
@@ -309,27 +312,14 @@ def bounded_margin(
 
 
 def run_envelope_twin(
-    model: str,
-    beta: float,
-    amplitude: float,
-    duration: float,
-    n: int,
-    seed: int,
-    decimate: int,
-    threads: int | None,
-    fields: tuple[str, ...],
-    integrator: str = "Euler",
+    scenario: Scenario, *, recording: Recording, threads: int | None, integrator: str = "Euler"
 ):
-    """The twin at the specification's corner under the same noise as the file's twin,
-    stepped by ``integrator`` (the engine twin's)."""
+    """The twin at the specification's corner under the same noise as the file's twin
+    (the same scenario), stepped by ``integrator`` (the engine twin's)."""
     from reduced.twin import TwinParams, simulate_twin
 
-    p = BalanceParams(beta=beta)
-    tw = TwinParams(**envelope_twin_terms(model, p, integrator))
-    return simulate_twin(
-        model, p, tw, duration, n, seed, amplitude=amplitude, decimate=decimate,
-        fields=fields, threads=threads,
-    )  # fmt: skip
+    tw = TwinParams(**envelope_twin_terms(scenario.model, scenario.params, integrator))
+    return simulate_twin(scenario, tw, recording=recording, execution=Execution(threads=threads))
 
 
 #: Margin rule when the known terms are bounded by the specification.

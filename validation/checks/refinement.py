@@ -245,26 +245,43 @@ def observable(model: mujoco.MjModel) -> tuple[list[int], np.ndarray]:
     return motors, np.array(rows)
 
 
+@dataclass(frozen=True)
+class RefinementSetting:
+    """The numerical setting of one refinement.
+
+    Attributes
+    ----------
+    seed : root seed of the open-loop forces (the ``refinement`` stream).
+    n_realizations : independent force histories.
+    chunk_time : the longest stretch handed to the engine at once, s (the delay tau:
+        the chunk protocol's bound).
+    levels : time steps dt, dt/2, ..., dt/2^(levels-1).
+    window : simulated time, s.
+    """
+
+    seed: int
+    n_realizations: int = REALIZATIONS
+    chunk_time: float = CHUNK_TIME
+    levels: int = LEVELS
+    window: float = WINDOW
+
+
 def refine(
     model: mujoco.MjModel,
     backend,
     *,
     rod: str,
-    seed: int,
-    n_realizations: int,
-    chunk_time: float,
+    setting: RefinementSetting,
     threads: int = 1,
-    levels: int = LEVELS,
-    window: float = WINDOW,
 ) -> Refinement:
     """Run ``backend`` (a :class:`cip.runner.RolloutBackend` class, faults included) on
-    ``model`` with its time step halved ``levels - 1`` times; compare with the exact
-    solution of the file's linearisation with the rod as ``rod`` declares it.
+    ``model`` with its time step halved ``setting.levels - 1`` times; compare with the
+    exact solution of the file's linearisation with the rod as ``rod`` declares it.
 
-    ``model`` is the compiled model file (its time step is the control interval h);
-    ``chunk_time`` (s) the longest stretch handed to the engine at once (the delay
-    tau: the chunk protocol's bound).
+    ``model`` is the compiled model file (its time step is the control interval h).
     """
+    seed, n_realizations, chunk_time = setting.seed, setting.n_realizations, setting.chunk_time
+    levels, window = setting.levels, setting.window
     from cip.linearize import rod_jacobians
     from reduced.zoh import zoh_response
 
@@ -399,8 +416,7 @@ def refinement_check(
     caps = engine.capabilities
     integrator = m_integrator(m) if len(getattr(engine, "integrators", ())) > 1 else None
     rod = "soft" if caps.rod == "soft" else "rigid"
-    r = refine(m, backend or engine.rollout(), rod=rod, seed=seed,
-               n_realizations=REALIZATIONS, chunk_time=CHUNK_TIME,
+    r = refine(m, backend or engine.rollout(), rod=rod, setting=RefinementSetting(seed),
                threads=max(1, min(threads or 1, REALIZATIONS)))  # fmt: skip
     need = least_order(caps, integrator)
     p_decl = declared_order(caps, integrator)

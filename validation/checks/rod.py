@@ -29,22 +29,25 @@ def rod_check(
     twin_stretch: np.ndarray,
     balancing_error: np.ndarray,
     twin,
-    rod: str,
-    tolerance: float,
-    complete: bool,
-    details: str,
+    declared: tuple[str, float],
+    details: str = "",
 ) -> Check:
     """The check ``twin.rod.<model>`` (rule in the module docstring).
 
     Parameters
     ----------
     stretch, twin_stretch : (R, T) tip 1 - tip 2 (m) of the engine and of its twin.
-    balancing_error : (R, T, 2) the engine's balancing errors (m).
+    balancing_error : (R, T, 2) the engine's balancing errors (m); the engine's run is
+        complete when it has the twin's length and is finite everywhere (a run that
+        stopped early fails).
     twin : the engine's :class:`reduced.twin.TwinParams`.
-    rod : the engine's declared rod (``Capabilities.rod``).
-    tolerance : the engine's ``rod_tolerance``.
-    complete : whether the engine's run finished with finite states.
+    declared : the engine's declared rod (``Capabilities.rod``) and its ``rod_tolerance``.
+    details : the run's setting, said in the check.
     """
+    rod, tolerance = declared
+    complete = bool(
+        stretch.shape[1] == twin_stretch.shape[1] and np.isfinite(balancing_error).all()
+    )
     k = min(stretch.shape[1], twin_stretch.shape[1])
     sf, st = stretch[:, :k], twin_stretch[:, :k]
     nf, nt = np.linalg.norm(sf), np.linalg.norm(st)

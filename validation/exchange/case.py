@@ -55,6 +55,7 @@ from cipcore.atomic import atomic_path
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
+from cipcore.scenario import Recording, Scenario
 from validation.checks.agreement import TWIN_AMPLITUDE, TWIN_WINDOW, model_file, rigid_engine
 from validation.checks.metrics import relative_l2
 from validation.checks.stats import FAIL, PASS, Check
@@ -225,10 +226,19 @@ def check_case(case: Case, traj: dict[str, np.ndarray], engine: str = "mujoco") 
         tips = _get(traj, s, "tip_position")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            twin = simulate_twin(model, p, twin_p, s["n_steps"] * s["dt"], s["n_realizations"],
-                                 case.seed, amplitude=s["amplitude"],
-                                 noise=ArrayNoise(case.xi[s["name"]], seed=case.seed),
-                                 fields=("balancing_error", "tip_position"))  # fmt: skip
+            twin = simulate_twin(
+                Scenario(
+                    model,
+                    p,
+                    s["n_steps"] * s["dt"],
+                    s["n_realizations"],
+                    case.seed,
+                    amplitude=s["amplitude"],
+                ),
+                twin_p,
+                noise=ArrayNoise(case.xi[s["name"]], seed=case.seed),
+                recording=Recording(fields=("balancing_error", "tip_position")),
+            )
         et = twin["balancing_error"]
         complete = bool(ef.shape[1] == et.shape[1] and np.isfinite(ef).all())
         rel = _relative_l2(ef, et)

@@ -228,6 +228,9 @@ def write_report(
 
     Trials cut short from outside (:data:`.analysis.INCOMPLETE`) are shown but left out
     of the averages, the ellipses and Fig. 16 unless ``include_incomplete``.
+
+    The function is long because it writes the report's sections in order, each beside its
+    figure.
     """
     out.mkdir(parents=True, exist_ok=True)
     results, trajs = analyse_directory(directory)

@@ -30,6 +30,7 @@ from cip.mjcf_params import shipped_model_path
 from cip.names import ROD, cart_joint, every_balancer, pendulum_body, tip_damper
 from cipcore.models import MODEL_NAMES
 from cipcore.params import BalanceParams
+from cipcore.scenario import EngineTarget
 from validation.checks.stats import FAIL
 
 XmlEdit = Callable[[ET.Element], None]
@@ -264,7 +265,7 @@ def file_checks(files: dict[str, str], seed: int, n_realizations: int, models) -
     from validation.checks.conformance import conformance_checks
 
     return conformance_checks(files, tuple(models)) + instrument_checks(
-        seed, n_realizations, threads=1, files=files, models=tuple(models)
+        seed, n_realizations, threads=1, target=EngineTarget(files=files), models=tuple(models)
     )
 
 

@@ -20,6 +20,7 @@ import time
 
 from cipcore.models import MODEL_NAMES
 from cipcore.params import ParameterError
+from cipcore.scenario import EngineTarget
 from validation.checks.agreement import instrument_checks, rigid_engine
 from validation.checks.stats import FAIL
 from validation.cli.args import nonnegative_int, positive_int
@@ -39,7 +40,7 @@ def flagged_by(
     models = fault.models if fault is not None else MODEL_NAMES
     try:
         checks = instrument_checks(seed, n_realizations, threads=1, fault=fault, models=models,
-                                   engine=engine, integrator=integrator)  # fmt: skip
+                                   target=EngineTarget(engine, integrator))  # fmt: skip
     except ParameterError as exc:
         if fault is None:
             raise

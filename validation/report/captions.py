@@ -46,6 +46,8 @@ def figure_caption(name: str, settings: dict[str, Any]) -> str:
     -------
     One paragraph of plain text; a file the suite does not know gets a caption
     saying so (never an empty one).
+
+    The function is long because it is a table of captions, one per figure.
     """
     s = settings
     seed = s["seed"]

@@ -89,7 +89,10 @@ def _row_cells(cells: list[Any]) -> str:
 
 
 def paper_section(results: dict) -> list[str]:
-    """The paper table, claim by claim, and the robustness table (validation.paper.claims)."""
+    """The paper table, claim by claim, and the robustness table (validation.paper.claims).
+
+    The function is long because it is the paper table's rows in order.
+    """
     from validation.paper.claims import ROBUSTNESS_RULE, VERDICT_RULE
 
     lines = ["", "## Paper reproduction: the paper's claims, one row each", "",
@@ -189,6 +192,7 @@ def _not_applicable(results: dict) -> str:
 
 
 def markdown(results: dict, regression: list[Check] | None = None) -> str:
+    """The function is long because it is the report's template, section by section."""
     from validation.cli.checklog import check_value
 
     lines = [

@@ -60,7 +60,8 @@ def _draw(job_file: Path) -> None:
     job_file.unlink(missing_ok=True)
     out_dir = Path(job["out_dir"])
     if job.get("kind", "paper") == "paper":
-        paths = paper_figures(out_dir, **job["kwargs"])
+        data = dict(job["kwargs"])
+        paths = paper_figures(out_dir, data, only=data.pop("only", None))
     else:
         paths = rod_figures(out_dir, **job["kwargs"])
     for path in paths:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -264,13 +266,26 @@ def fig_scan(scan, path: Path) -> Path:
     return _save(fig, path)
 
 
-def paper_figures(
-    out_dir: Path, *, only=None, curve=None, lyapunov_points=None, bstar=None, series=None,
-    rms=None, peaks=None, scan=None,
-) -> list[Path]:  # fmt: skip
+def paper_figures(out_dir: Path, data: Mapping[str, Any], *, only=None) -> list[Path]:
     """Write the figures of the report named in ``only`` (file names; default every one),
     in the report's order (:data:`validation.report.figures.PAPER_FIGURES`, which also
-    names the data each needs); returns their paths."""
+    names the data each needs); returns their paths.
+
+    ``data`` holds the stages' results by name: ``curve`` (lambda1 over the gains),
+    ``lyapunov_points``, ``bstar``, ``series``, ``rms``, ``peaks``, ``scan``; a figure
+    whose data is missing is not asked for.
+    """
+    curve, lyapunov_points, bstar = (
+        data.get("curve"),
+        data.get("lyapunov_points"),
+        data.get("bstar"),
+    )
+    series, rms, peaks, scan = (
+        data.get("series"),
+        data.get("rms"),
+        data.get("peaks"),
+        data.get("scan"),
+    )
     from cipcore.params import BalanceParams
     from validation.checks.divergence import pendulum_length
     from validation.profiles import PAPER_BETA

@@ -60,7 +60,7 @@ a one-stick model) is refused.
 from validation.sweeps.evaluate import evaluate_point
 from validation.sweeps.mapping import point_params
 from validation.sweeps.report import LABELS, mean_ci, plot_metric, write_sweep_report
-from validation.sweeps.schedule import SweepReport, run_sweep
+from validation.sweeps.schedule import SweepPool, SweepReport, run_sweep
 from validation.sweeps.store import DirectoryLock, Store, assemble, write_dataset
 from validation.sweeps.study import (
     METRICS,
@@ -75,7 +75,7 @@ from validation.sweeps.study import (
 
 __all__ = [
     "LABELS", "METRICS", "SETTINGS", "STCC_MIN_DURATION", "DirectoryLock", "Store", "Study",
-    "SweepReport", "assemble", "default_studies_dir", "evaluate_point", "mean_ci", "parse_grid",
-    "plot_metric", "point_key", "point_params", "point_seed", "run_sweep", "write_dataset",
-    "write_sweep_report",
+    "SweepPool", "SweepReport", "assemble", "default_studies_dir", "evaluate_point", "mean_ci",
+    "parse_grid", "plot_metric", "point_key", "point_params", "point_seed", "run_sweep",
+    "write_dataset", "write_sweep_report",
 ]  # fmt: skip

@@ -24,6 +24,7 @@ from typing import Any
 
 from cipcore.models import get_model
 from cipcore.params import ParameterError
+from cipcore.scenario import Execution, Scenario
 from validation.profiles import PAPER_BETA
 from validation.regression.versions import package_versions
 from validation.sweeps.mapping import point_params
@@ -78,10 +79,11 @@ def point_gains(study: Study, out_dir: str | Path, threads: int = 1) -> dict[str
             centre = PAPER_BETA[get_model(key["model"]).name]
             lo, hi = centre - g["half_width"], centre + g["half_width"]
             try:
+                scenario = Scenario(key["model"], params, g["duration"], g["realizations"],
+                                    key["seed"])  # fmt: skip
                 res = critical_gain(
-                    key["model"], params, (max(lo, 0.0), hi), target=g["target_lambda1"],
-                    n_gains=g["gains"], duration=g["duration"],
-                    n_realizations=g["realizations"], seed=key["seed"], threads=threads,
+                    scenario, (max(lo, 0.0), hi), target=g["target_lambda1"],
+                    n_gains=g["gains"], execution=Execution(threads=threads),
                 )  # fmt: skip
             except ParameterError as exc:
                 raise ParameterError(f"gain: point {point_key(point)}: {exc}") from None

@@ -92,6 +92,8 @@ def plot_metric(ds, metric: str, x: str, path: Path) -> Path:
     per-realisation metrics: the median with its bootstrap 95 % band; a
     per-point quantity: its value, with its ``_ci_low`` / ``_ci_high`` band when
     the dataset has one.  Axes carry the variables' ``long_name [units]``.
+
+    The function is long because one figure's layout is said in one place.
     """
     from validation.report.plots import plt
     from validation.sweeps.attrs import label
@@ -193,7 +195,10 @@ def _cells(ds, metric: str, sel: dict, seed: int, index: int) -> list[str]:
 def write_sweep_report(study: Study, out_dir: Path) -> Path:
     """DIR/report.md: the settings, one figure per metric against the first swept parameter
     (median and bootstrap 95 % band), the paired comparisons of a ``compare`` study and its
-    target gains beta* with their intervals, and a table of heavy-tail summaries."""
+    target gains beta* with their intervals, and a table of heavy-tail summaries.
+
+    The function is long because it writes the report's sections in order.
+    """
     import xarray as xr
 
     from validation.sweeps.attrs import label

@@ -20,6 +20,24 @@ from validation.sweeps.store import DirectoryLock, Store, write_dataset
 from validation.sweeps.study import Study, point_key
 
 
+@dataclass(frozen=True)
+class SweepPool:
+    """Where a sweep's grid points are computed; never what they compute.
+
+    Attributes
+    ----------
+    workers : single-threaded worker processes (1: in this process; None: chosen by
+        the work, :func:`choose_workers` timed on the first point).
+    scheduler : the address of a Dask cluster to compute on instead.
+    point_threads : threads of a point computed in this process (its realisations
+        split across them).
+    """
+
+    workers: int | None = None
+    scheduler: str | None = None
+    point_threads: int = 1
+
+
 @dataclass
 class SweepReport:
     """What a sweep did: points computed here, reused from the directory, the dataset,
@@ -62,27 +80,26 @@ def run_sweep(
     study: Study,
     out_dir: str | Path,
     *,
-    workers: int | None = None,
-    scheduler: str | None = None,
+    pool: SweepPool = SweepPool(),
     progress: bool = False,
     on_point: Callable[[dict], None] | None = None,
     wait_for_lock: bool = False,
-    point_threads: int = 1,
 ) -> SweepReport:
     """Compute every missing grid point, persist each, assemble ``sweep.nc``.
 
     A study with a ``[gain]`` target first finds beta* of every point
     (:func:`validation.sweeps.gains.point_gains`, cached in ``DIR/gains``).
-    ``workers`` single-threaded processes (1 runs in this process; default: chosen
-    by the work, :func:`choose_workers` timed on the first point, computed here), or
-    the Dask cluster at ``scheduler``; :attr:`SweepReport.schedule` says which.  The directory is
-    locked for the whole sweep (:class:`validation.sweeps.store.DirectoryLock`):
-    a second sweep into it fails at once naming the holder, or with
-    ``wait_for_lock`` waits and then reuses the finished points.  ``point_threads``:
-    threads of a point computed in this process (its realisations split across them;
-    the numbers do not depend on it).
+    ``pool`` says where: worker processes or a Dask cluster (:class:`SweepPool`);
+    :attr:`SweepReport.schedule` says which was used; the numbers do not depend on
+    it.  The directory is locked for the whole sweep
+    (:class:`validation.sweeps.store.DirectoryLock`): a second sweep into it fails at
+    once naming the holder, or with ``wait_for_lock`` waits and then reuses the
+    finished points.  The function is long for a reason: it is the one place that
+    picks the schedule and keeps every finished point whatever stops the sweep.
     """
     from tqdm.auto import tqdm
+
+    workers, scheduler, point_threads = pool.workers, pool.scheduler, pool.point_threads
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

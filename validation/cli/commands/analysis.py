@@ -102,6 +102,7 @@ def cmd_lyapunov(a: argparse.Namespace) -> int:
 
 # --------------------------------------------------------- critical gain
 def cmd_critical_gain(a: argparse.Namespace) -> int:
+    from cipcore.scenario import Execution, Scenario
     from reduced.lyapunov import critical_gain, numerical_setting
 
     lo, hi = a.beta_range  # LOW < HIGH: checked by the parser (the domain's pair)
@@ -110,16 +111,11 @@ def cmd_critical_gain(a: argparse.Namespace) -> int:
     check_lyapunov_duration(a, params.tau, params.dt)
     check_work("--duration", a.realizations, a.duration, params.dt, runs=a.gains, force=a.force)
     res = critical_gain(
-        a.model,
-        params,
+        Scenario(a.model, params, a.duration, a.realizations, a.seed),
         (lo, hi),
         target=a.target,
         n_gains=a.gains,
-        duration=a.duration,
-        n_realizations=a.realizations,
-        seed=a.seed,
-        threads=a.threads,
-        progress=progress_enabled(),
+        execution=Execution(threads=a.threads, progress=progress_enabled()),
     )
     setting = numerical_setting(params, a.duration, a.realizations)
     if a.json:
@@ -198,6 +194,10 @@ def cmd_stability(a: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------ parser
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the commands to the parser. The function is long because it declares every option of
+    its commands, one call each.
+    """
+
     p = sub.add_parser(
         "lyapunov",
         help="largest Lyapunov exponent lambda1 (mean, 95 %% CI)",

@@ -51,7 +51,12 @@ def _quiet_say(text: str) -> None:
 
 
 def cmd_run(a: argparse.Namespace) -> int:
+    """The function is long because it turns every way a run can end into its exit code and one
+    message.
+    """
+
     from cip.mjcf_params import model_files
+    from cipcore.scenario import EngineTarget
     from validation.cli.checklog import regression_log
     from validation.cli.exitcodes import EXIT_CRASH, run_status
     from validation.cli.junit import run_cases, write_junit
@@ -62,7 +67,14 @@ def cmd_run(a: argparse.Namespace) -> int:
         summary_table,
         write_reports,
     )
-    from validation.run import STAGES, RunInterrupted, StageCrashed, compile_note, run_validation
+    from validation.run import (
+        STAGES,
+        RunInterrupted,
+        RunSetting,
+        StageCrashed,
+        compile_note,
+        run_validation,
+    )
 
     baseline = read_results(a.baseline, "--baseline") if a.baseline else None
     if baseline is not None and baseline.get("profile") != a.profile:
@@ -117,18 +129,16 @@ def cmd_run(a: argparse.Namespace) -> int:
 
     with interrupt_signals() as got:
         try:
-            results = run_validation(
+            setting = RunSetting(
                 profile,
-                out,
+                EngineTarget(a.engine, a.integrator, files),
                 workers=a.workers,
-                progress=progress_enabled(a.quiet),
                 figures=not a.no_figures,
                 resume=a.resume,
-                on_stage=on_stage,
-                interrupted=lambda: got["signal"] is not None,
-                model_files=files,
-                engine=a.engine,
-                integrator=a.integrator,
+                progress=progress_enabled(a.quiet),
+            )
+            results = run_validation(
+                setting, out, on_stage=on_stage, interrupted=lambda: got["signal"] is not None
             )
         except WriteError as exc:
             exc.note = (f"the stages finished before it are kept in {out / 'stages'}; free "
@@ -197,8 +207,9 @@ def cmd_run(a: argparse.Namespace) -> int:
 
 
 def cmd_baseline(a: argparse.Namespace) -> int:
+    from cipcore.scenario import EngineTarget
     from validation.report.document import write_json
-    from validation.run import RunInterrupted, run_validation
+    from validation.run import RunInterrupted, RunSetting, run_validation
 
     out = check_out_file("--out", a.out, (".json",))
     check_engine_options(a)
@@ -208,11 +219,11 @@ def cmd_baseline(a: argparse.Namespace) -> int:
     else:
         with interrupt_signals() as got, tempfile.TemporaryDirectory() as tmp:
             try:
-                results = run_validation(
-                    PROFILES[a.profile], Path(tmp), workers=a.workers,
-                    progress=progress_enabled(), figures=False, engine=a.engine,
-                    integrator=a.integrator, interrupted=lambda: got["signal"] is not None,
-                )  # fmt: skip
+                setting = RunSetting(PROFILES[a.profile], EngineTarget(a.engine, a.integrator),
+                                     workers=a.workers, figures=False,
+                                     progress=progress_enabled())  # fmt: skip
+                results = run_validation(setting, Path(tmp),
+                                         interrupted=lambda: got["signal"] is not None)  # fmt: skip
             except RunInterrupted:
                 name, status = interrupted_status(got)
                 print(
@@ -227,6 +238,10 @@ def cmd_baseline(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the commands to the parser. The function is long because it declares every option of
+    its commands, one call each.
+    """
+
     p = sub.add_parser(
         "run",
         help="the validation suite: checks, paper table, figures, report",

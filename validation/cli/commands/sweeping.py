@@ -24,6 +24,7 @@ from validation.cli.domains import add_option
 from validation.sweeps import (
     METRICS,
     Study,
+    SweepPool,
     default_studies_dir,
     parse_grid,
     run_sweep,
@@ -117,8 +118,7 @@ def cmd_sweep(a: argparse.Namespace) -> int:
             rep = run_sweep(
                 study,
                 out,
-                workers=a.workers,
-                scheduler=a.scheduler,
+                pool=SweepPool(workers=a.workers, scheduler=a.scheduler),
                 progress=progress_enabled(),
                 on_point=finished.append,
                 wait_for_lock=a.wait,
@@ -197,6 +197,10 @@ def cmd_sweep_export(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    """Add the commands to the parser. The function is long because it declares every option of
+    its commands, one call each.
+    """
+
     p = sub.add_parser(
         "sweep",
         help="parameter study over a grid (resumable; local or Dask)",
