@@ -27,14 +27,11 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from .params import ParameterError, check_count
-
-if TYPE_CHECKING:
-    from .scenario import Recording
 
 UNITS: dict[str, str] = {
     "tip_position": "m",
@@ -124,7 +121,7 @@ def plan_recording(
     n_steps: int,
     n_realizations: int,
     nc: int,
-    recording: Recording,
+    recording: Any,
     allowed: tuple[str, ...] = COMMON_FIELDS,
 ) -> tuple[int, tuple[str, ...]]:
     """Check a recording request; the number of samples and the fields recorded.

@@ -391,10 +391,13 @@ def _profile_names() -> tuple[str, ...]:
     return tuple(PROFILES)
 
 
-def _metric_names() -> tuple[str, ...]:
-    from validation.sweeps.study import METRICS
+#: the metrics a study can ask for (``metrics = [...]`` of a study file; the names of
+#: :data:`validation.sweeps.study.METRICS`, declared here with the other domains)
+STUDY_METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
 
-    return METRICS
+
+def _metric_names() -> tuple[str, ...]:
+    return STUDY_METRICS
 
 
 def _steppers() -> tuple[str, ...]:

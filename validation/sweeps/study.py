@@ -22,7 +22,7 @@ import numpy as np
 from cipcore.models import get_model
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
-from validation.cli.domains import check_key
+from validation.cli.domains import STUDY_METRICS, check_key
 from validation.profiles import Profile
 from validation.regression.versions import package_versions
 from validation.sweeps.mapping import (
@@ -33,7 +33,7 @@ from validation.sweeps.mapping import (
     point_params,
 )
 
-METRICS = ("lambda1", "rms", "max_angle", "agreement", "tau_hat", "slopes")
+METRICS = STUDY_METRICS
 #: metrics defined only for an engine with ``capabilities.rigid_body``
 RIGID_BODY_METRICS = ("max_angle", "agreement")
 #: STCC settings of the tau_hat metric: the profiles' (paper: window Dt = 5 s)
