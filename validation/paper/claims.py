@@ -108,7 +108,7 @@ def critical_gains(profile: Profile, threads: int | None):
     shift = c.beta_star - s.beta_star
     shift_se = float(np.hypot(s.std, c.std))
     checks, rows = [], []
-    settings = f"{settings}; {BETA_STAR_OFFSET}"
+    details = f"{settings}; {BETA_STAR_OFFSET}"  # the checks' details; the rows keep settings
     rule = ("|ours - paper| <= t_(1-5e-4, n-1) x SE (bootstrap, n/(n-1) corrected) + the "
             "paper's printed precision: false-failure rate 1e-3 per check")  # fmt: skip
     for model, paper in PAPER_BETA.items():
@@ -121,7 +121,7 @@ def critical_gains(profile: Profile, threads: int | None):
             name=f"paper.beta_star.{model}", status=PASS if ok else FAIL,
             values={"value": r.beta_star, "se": r.std, "ci95": list(r.ci95), "paper": paper,
                     "tolerance": tol},
-            tolerance=rule, details=settings,
+            tolerance=rule, details=details,
         ))  # fmt: skip
     n = min(s.n_realizations, c.n_realizations)
     tol = beta_star_tolerance(shift_se, n, PAPER_PRECISION["shift"])
@@ -131,7 +131,7 @@ def critical_gains(profile: Profile, threads: int | None):
     checks.append(Check(
         name="paper.beta_star.shift", status=PASS if ok else FAIL,
         values={"value": shift, "se": shift_se, "paper": 0.726, "tolerance": tol},
-        tolerance=rule, details=settings,
+        tolerance=rule, details=details,
     ))  # fmt: skip
     return checks, rows, res
 
