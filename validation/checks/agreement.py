@@ -36,6 +36,7 @@ from validation.checks.stats import (
     paired_shift,
     se_agreement,
     t_half_width,
+    tost_status,
     worst,
 )
 from validation.profiles import PAPER_BETA, TRAJECTORY_WINDOW, Profile
@@ -589,12 +590,7 @@ def mf_equivalence(
     est = mfe.mfmc_estimate(y, x)
     margin = min(_known(x), _known(np.asarray(env, dtype=float).ravel() - r)) + est.half_width
     lo, hi = est.ci95
-    if lo >= -margin and hi <= margin:
-        status = PASS
-    elif lo > margin or hi < -margin:
-        status = FAIL
-    else:
-        status = INCONCLUSIVE
+    status = tost_status(lo, hi, margin)
     plain = est.plain_half_width(n_plain)  # at the same sigma_y, from every sample
     ratio = est.half_width / plain if plain > 0 else (0.0 if est.half_width == 0 else np.inf)
     rf = r[np.isfinite(r)]

@@ -98,6 +98,17 @@ def needed_realizations(d: np.ndarray, margin: float) -> int | None:
     return n
 
 
+def tost_status(lo: float, hi: float, margin: float) -> str:
+    """The verdict of an equivalence test (TOST) from a 95 % interval [lo, hi] of a
+    difference and its margin: PASS when the interval lies inside +- margin, FAIL when
+    it lies wholly outside, INCONCLUSIVE otherwise."""
+    if lo >= -margin and hi <= margin:
+        return PASS
+    if lo > margin or hi < -margin:
+        return FAIL
+    return INCONCLUSIVE
+
+
 def paired_equivalence(
     full: np.ndarray,
     reference: np.ndarray,
@@ -138,12 +149,7 @@ def paired_equivalence(
     else:
         rule = "given"
     lo, hi = d.mean() - hw, d.mean() + hw
-    if lo >= -margin and hi <= margin:
-        status = PASS
-    elif lo > margin or hi < -margin:
-        status = FAIL
-    else:
-        status = INCONCLUSIVE
+    status = tost_status(lo, hi, margin)
     n = a.size
     out = {
         "n": int(n),
