@@ -136,6 +136,24 @@ class RigidBody:
     mj_model: object = field(default=None, compare=False)
 
 
+def schema_fields(
+    x: np.ndarray, v: np.ndarray, e: np.ndarray, edot: np.ndarray, angle: np.ndarray
+) -> dict[str, np.ndarray]:
+    """The shared schema's fields (:mod:`cipcore.schema`) of the rigid body, each (..., C):
+    cart position x (m) and velocity v (m/s), balancing error e = L sin(theta) (m) and
+    its rate e' = L cos(theta) theta' (m/s), the pendulum's angle theta (rad); the tip
+    is at x + e."""
+    return {
+        "tip_position": x + e,
+        "tip_velocity": v + edot,
+        "base_position": x,
+        "base_velocity": v,
+        "balancing_error": e,
+        "balancing_error_velocity": edot,
+        "angle": angle,
+    }
+
+
 class CIPRunner:
     """State of R realisations of the single or coupled CIP and their delay buffers.
 
@@ -262,12 +280,4 @@ class CIPRunner:
         x = states[..., self.i_x]
         v = states[..., self.i_vx]
         e, edot = self.errors(states)
-        return {
-            "tip_position": x + e,
-            "tip_velocity": v + edot,
-            "base_position": x,
-            "base_velocity": v,
-            "balancing_error": e,
-            "balancing_error_velocity": edot,
-            "angle": states[..., self.i_th],
-        }
+        return schema_fields(x, v, e, edot, states[..., self.i_th])

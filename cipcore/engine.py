@@ -25,7 +25,7 @@ from typing import Any, Protocol, TypedDict, Unpack, runtime_checkable
 
 import numpy as np
 
-from .models import BalanceModel
+from .models import BalanceModel, get_model
 from .params import BalanceParams, ParameterError
 from .results import LyapunovResult
 from .schema import Trajectory
@@ -34,6 +34,10 @@ from .schema import Trajectory
 @dataclass(frozen=True)
 class Capabilities:
     """What an engine can do, declared by the engine itself.
+
+    The defaults describe the common case, a deterministic float64 rigid body stepped
+    on the CPU by compiled code, holding MuJoCo's soft rod with its ``Euler``; an
+    engine declares what differs.
 
     Attributes
     ----------
@@ -77,10 +81,10 @@ class Capabilities:
         judged by time-step refinement where it does not.
     """
 
-    precision: str
-    device: str
-    rigid_body: bool
-    linearize: bool
+    precision: str = "float64"
+    device: str = "cpu"
+    rigid_body: bool = True
+    linearize: bool = False
     deterministic: bool = True
     family: str = ""
     trajectory_tolerance: float = 1e-2
@@ -212,3 +216,73 @@ class Engine(Protocol):
         seed: int = 0,
         **options: Unpack[LyapunovOptions],
     ) -> LyapunovResult: ...
+
+
+def _engine_method(method: str, n_default: int, doc: str):
+    """:meth:`Engine.simulate` or :meth:`Engine.lyapunov` for :class:`EngineMethods`: the two
+    differ only in their name, their default number of realisations and what they run."""
+
+    def call(
+        self: EngineMethods,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        duration: float,
+        n_realizations: int = n_default,
+        seed: int = 0,
+        **options: Any,
+    ) -> Any:
+        scenario, grouped = self._scenario(method, (model, params, duration), n_realizations,
+                                           seed, options)  # fmt: skip
+        if method == "simulate":
+            return self.simulate_scenario(scenario, grouped)
+        return self.lyapunov_scenario(scenario, grouped)
+
+    call.__name__ = call.__qualname__ = method
+    call.__doc__ = f"See :meth:`{doc}`."
+    return call
+
+
+class EngineMethods:
+    """:meth:`Engine.simulate` and :meth:`Engine.lyapunov`, written once for every engine.
+
+    The registry's interface keeps flat keywords (``amplitude=``, ``threads=``, ...:
+    what users and the validation call); an engine class that inherits this names the
+    options each method accepts (:meth:`accepted`), may adjust them before they are
+    grouped (:meth:`place`), and runs the :class:`cipcore.scenario.Scenario` with the
+    grouped values (:class:`cipcore.scenario.Recording`, ``Execution``, ...) that the
+    call becomes (:meth:`simulate_scenario`, :meth:`lyapunov_scenario`).
+    """
+
+    name: str
+
+    def accepted(self, method: str) -> Iterable[str]:
+        """The flat keyword options ``method`` ("simulate" or "lyapunov") takes."""
+        raise NotImplementedError
+
+    def place(self, method: str, options: dict[str, Any], work: int) -> None:
+        """Adjust ``options`` in place before they are grouped; ``work`` is the run's
+        realisation-steps (realisations x steps, twice that for lyapunov's pairs).
+        Default: nothing."""
+
+    def simulate_scenario(self, scenario: Any, grouped: dict[str, Any]) -> Trajectory:
+        """Run ``scenario`` with the grouped options: the trajectory."""
+        raise NotImplementedError
+
+    def lyapunov_scenario(self, scenario: Any, grouped: dict[str, Any]) -> LyapunovResult:
+        """lambda1 (eq. (7)) of ``scenario`` with the grouped options."""
+        raise NotImplementedError
+
+    simulate = _engine_method("simulate", 1, "Engine.simulate")
+    lyapunov = _engine_method("lyapunov", 8, "Engine.lyapunov")
+
+    def _scenario(self, method: str, run: tuple, n_realizations: int, seed: int,
+                  options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:  # fmt: skip
+        from .scenario import engine_call  # (not at import: the CLI's start-up)
+
+        model, params, duration = run
+        check_options(self.name, method, options, self.accepted(method))
+        n = getattr(options.get("noise"), "n_realizations", n_realizations)
+        self.place(method, options, (2 if method == "lyapunov" else 1) * n
+                   * round(duration / params.dt))  # fmt: skip
+        return engine_call((get_model(model).name, params, duration, n_realizations, seed),
+                           options)  # fmt: skip

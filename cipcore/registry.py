@@ -30,6 +30,7 @@ ENGINES: dict[str, str] = {
     "simbody": "cip.engines.simbody:ENGINE",
     "pinocchio": "cip.engines.pinocchio:ENGINE",
     "dart": "cip.engines.dart:ENGINE",
+    "physx": "cip.engines.physx:ENGINE",
 }
 
 REFERENCE = "reduced"

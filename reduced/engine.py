@@ -12,11 +12,11 @@ from typing import Any
 
 import numpy as np
 
-from cipcore.engine import Capabilities, check_options
+from cipcore.engine import Capabilities, EngineMethods, check_options
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
-from cipcore.scenario import engine_call, flat_options
+from cipcore.scenario import Scenario, flat_options
 from cipcore.schema import Trajectory, check_amplitude
 
 from ._kernels import advance_positions
@@ -54,18 +54,11 @@ class ReducedChunks:
         return record_fields(rec)
 
 
-class ReducedEngine:
+class ReducedEngine(EngineMethods):
     """The paper's reduced linear model (eqs. (3), (5)), float64 on the CPU."""
 
     name = "reduced"
-    capabilities = Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=False,
-        linearize=False,
-        family="reference",
-        trajectory_tolerance=0.0,
-    )
+    capabilities = Capabilities(rigid_body=False, family="reference", trajectory_tolerance=0.0)
     notes = "the paper's reduced linear model, numba kernel"
 
     #: the chunk runner class and the simulate function (the GPU engine swaps both)
@@ -88,32 +81,15 @@ class ReducedEngine:
             check_options(self.name, "runner", {"physical": physical}, ())
         return self.chunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
 
-    def simulate(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        duration: float,
-        n_realizations: int = 1,
-        seed: int = 0,
-        **options: Any,
-    ) -> Trajectory:
-        check_options(self.name, "simulate", options, flat_options(self.simulate_fn))
-        call = (get_model(model).name, params, duration, n_realizations, seed)
-        scenario, grouped = engine_call(call, options)
+    def accepted(self, method: str) -> frozenset[str]:
+        if method == "simulate":
+            return flat_options(self.simulate_fn)
+        return flat_options(lyapunov, ())
+
+    def simulate_scenario(self, scenario: Scenario, grouped: dict[str, Any]) -> Trajectory:
         return self.simulate_fn(scenario, **grouped)
 
-    def lyapunov(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        duration: float,
-        n_realizations: int = 8,
-        seed: int = 0,
-        **options: Any,
-    ) -> LyapunovResult:
-        check_options(self.name, "lyapunov", options, flat_options(lyapunov, ()))
-        call = (get_model(model).name, params, duration, n_realizations, seed)
-        scenario, grouped = engine_call(call, options)
+    def lyapunov_scenario(self, scenario: Scenario, grouped: dict[str, Any]) -> LyapunovResult:
         return lyapunov(scenario, **grouped)
 
 

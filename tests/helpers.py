@@ -27,6 +27,19 @@ def engine_or_skip(name: str):
     return get_engine(name)
 
 
+def without_refinement(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Leave the ``refinement.<model>`` check out of :func:`instrument_checks` (n/a) in a
+    test that asserts on the other direct checks (twin, delay): refinement steps the
+    engine at dt .. dt/8, most of a slow engine's time there, and its own tests
+    (tests/test_refinement.py and each engine's) hold it to the faults."""
+    from validation.checks import refinement
+
+    def not_run(model: str, *args: Any, **kwargs: Any):
+        return refinement.not_run(model, "left out by the test (tests/helpers.py)")
+
+    monkeypatch.setattr(refinement, "refinement_check", not_run)
+
+
 def running(pid: int) -> bool:
     """True while process ``pid`` exists and is not a zombie (Linux ``/proc``)."""
     try:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import engine_or_skip
+from helpers import engine_or_skip, without_refinement
 
 from cip.mjcf_params import read_mapping
 from cipcore.params import BalanceParams
@@ -64,13 +64,15 @@ def test_drake_meets_its_rigid_rod_twin(model: str) -> None:
 @pytest.mark.parametrize(
     ("kind", "size"), [("delay_late", 1), ("cart_damping", 0.01), ("pendulum_length", 0.005)]
 )
-def test_faults_at_the_engine_boundary_fail_the_direct_checks(name: str, kind: str, size: float):
+def test_faults_at_the_engine_boundary_fail_the_direct_checks(name, kind, size, monkeypatch):
     """A one-step-late delay, +1 % cart damping and +0.5 % pole length in the single model,
     injected into the engine, fail the checks `run --engine` and `engines` both run
     (:func:`validation.checks.agreement.series_checks` runs them for both).  MJX reuses its
     compiled step for the model edits; MuJoCo Warp runs on warp's CPU device only with
-    CIPVAL_WARP_DEVICE=cpu (else skipped with the reason)."""
+    CIPVAL_WARP_DEVICE=cpu (else skipped with the reason).  Refinement is left out
+    (``helpers.without_refinement``)."""
     engine_or_skip(name)
+    without_refinement(monkeypatch)
     fault = make_fault(kind, size)
     checks = instrument_checks(
         1, 1, threads=1, fault=fault, models=("single",), target=EngineTarget(name)

@@ -120,14 +120,14 @@ def test_laminar_phase_durations_and_exponent():
 
 def test_bootstrap_broken_lines_fitted_at_once_equal_one_at_a_time():
     """The bootstrap's broken lines, fitted in one pass, are the one-by-one fits to rounding."""
-    from validation.checks.metrics import _broken_line, _broken_lines, _log_bins
+    from validation.checks.metrics import _broken_line, broken_lines, log_bins
 
     rng = np.random.default_rng(3)
     f = np.linspace(0.02, 30.0, 2000)
     s = (f**-0.5 / (1 + (f / 2) ** 2)) * np.exp(rng.standard_normal((12, f.size)))
-    lf, ls = _log_bins(f, s, 0.05, 20.0, 24)
+    lf, ls = log_bins(f, s, 0.05, 20.0, 24)
     rows = np.stack([ls[rng.integers(0, 12, 12)].mean(axis=0) for _ in range(60)])
-    together = _broken_lines(lf, rows)
+    together = broken_lines(lf, rows)
     alone = np.array([_broken_line(lf, r) for r in rows])
     np.testing.assert_array_equal(together[:, 2], alone[:, 2])  # the same breakpoints
     np.testing.assert_allclose(together, alone, rtol=1e-12, atol=0)

@@ -11,7 +11,7 @@ from helpers import engine_or_skip, running
 from cipcore.params import BalanceParams
 
 #: engines whose ``threads`` are worker processes (their step holds the GIL)
-WORKER_ENGINES = ("drake", "bullet", "exudyn", "simbody", "pinocchio", "dart")
+WORKER_ENGINES = ("drake", "bullet", "exudyn", "simbody", "pinocchio", "dart", "physx")
 
 
 @pytest.fixture

@@ -33,15 +33,7 @@ from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import REFERENCE, availability, check_engine_name, engine_names, get_engine
 from validation.checks import agreement
 from validation.checks.metrics import relative_l2
-from validation.checks.stats import (
-    FAIL,
-    INCONCLUSIVE,
-    NOT_APPLICABLE,
-    PASS,
-    Check,
-    ci_overlap,
-    worst,
-)
+from validation.checks.stats import FAIL, INCONCLUSIVE, PASS, Check, ci_overlap, worst
 from validation.profiles import PAPER_BETA, PROFILES, TRAJECTORY_WINDOW, Profile
 
 #: The engine every throughput is divided by.
@@ -151,12 +143,8 @@ def validate_engine(
         row["delay_steps"] = {
             m: _value(checks, f"delay.{m}", "measured_steps") for m in MODEL_NAMES
         }
-        row["tier"] = {
-            m: "refinement"
-            if any(c.name == f"twin.trajectory.{m}" and c.status == NOT_APPLICABLE for c in checks)
-            else "exact twin"
-            for m in MODEL_NAMES
-        }
+        refined = agreement.judged_by_refinement(checks)
+        row["tier"] = {m: "refinement" if m in refined else "exact twin" for m in MODEL_NAMES}
         row["refinement"] = {
             m: {k: _value(checks, f"refinement.{m}", k) for k in ("e0", "order", "floor")}
             for m in MODEL_NAMES

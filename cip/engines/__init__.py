@@ -10,6 +10,10 @@
   time-step refinement);
 * :mod:`~cip.engines.dart`: DART (semi-implicit Euler, a rigid rod; judged by time-step
   refinement);
+* :mod:`~cip.engines.physx`: PhysX through SAPIEN (CPU, float32; semi-implicit Euler, a rigid
+  rod; judged by time-step refinement);
+* :mod:`~cip.engines.rollout`: :class:`~cip.engines.rollout.ModelRollout`, the half of a
+  rollout backend every engine built from the compiled model shares;
 * :mod:`~cip.engines.process`: an engine in another program (the chunk protocol).
 
 A new engine is one module here, one entry in :data:`cipcore.registry.ENGINES` and

@@ -62,8 +62,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import generalized_forces, geometry_from_mujoco
+from cip.engines.drake_plant import generalized_forces
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.mjcf_params import ModelMapping
 from cip.quiet import quiet_import
 from cipcore.engine import Capabilities
@@ -100,7 +101,7 @@ def _pybullet():
     return quiet_import("pybullet")
 
 
-class BulletRollout:
+class BulletRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP in Bullet multibodies.
 
     Parameters
@@ -118,17 +119,8 @@ class BulletRollout:
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
         self.pb = _pybullet()
-        g = geometry_from_mujoco(model)
-        self.geometry = g
-        self.dt = g.timestep
-        self.nc = g.n_controllers
-        self.nq = model.nq
-        self.qpos_x = np.array(g.qpos_x)
-        self.qpos_th = np.array(g.qpos_theta)
-        self.dof_x = np.array(g.dof_x)
-        self.dof_th = np.array(g.dof_theta)
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
+        super().__init__(model)
+        self.nc = self.geometry.n_controllers
         self.clients: list[tuple[int, list[int]] | None] = [None] * n_realizations
         self.last: list[np.ndarray | None] = [None] * n_realizations
 
@@ -196,8 +188,8 @@ class BulletRollout:
     def _write(self, cid: int, bodies: list[int], s: np.ndarray) -> None:
         """Write the MuJoCo state ``s`` (time, qpos, qvel) into client ``cid``."""
         pb, g = self.pb, self.geometry
-        x, th = s[1 + self.qpos_x], s[1 + self.qpos_th]
-        v, om = s[1 + self.nq + self.dof_x], s[1 + self.nq + self.dof_th]
+        x, th = s[self.mj_x], s[self.mj_theta]
+        v, om = s[self.mj_xdot], s[self.mj_omega]
         for i, body in enumerate(bodies):
             pb.resetJointState(body, 0, x[i], v[i], physicsClientId=cid)
             pb.resetJointState(body, 1, th[i], om[i], physicsClientId=cid)
@@ -215,11 +207,9 @@ class BulletRollout:
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         pb, g = self.pb, self.geometry
         R, n = ctrl.shape[:2]
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
-        ix = np.r_[1 + self.qpos_x, 1 + self.qpos_th]
-        iv = np.r_[1 + self.nq + self.dof_x, 1 + self.nq + self.dof_th]
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
+        ix = np.r_[self.mj_x, self.mj_theta]
+        iv = np.r_[self.mj_xdot, self.mj_omega]
         for r in range(R):
             if not np.all(np.isfinite(state[r])):
                 out[r, :, 1:] = np.nan
@@ -248,10 +238,6 @@ class BulletRollout:
                 out[r, k, iv] = qd
             self.last[r] = out[r, -1].copy()
 
-    def warnings(self) -> int:
-        """Bullet raises no step warnings; a diverged state reads as NaN or a large angle."""
-        return 0
-
     def __del__(self) -> None:
         for c in getattr(self, "clients", []):
             if c is not None:
@@ -264,13 +250,8 @@ class BulletRollout:
 ENGINE = RigidBodyEngine(
     name="bullet",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
         family="Bullet",
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
-        integrator="Euler",
         rod="velocity-level",
         twin="semi-implicit Euler with explicit forces; the rod as Bullet's velocity-level "
         "constraint row (stiffness erp/dt^2, damping 1/dt, no regulariser)",

@@ -87,8 +87,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.names import cart_joint, hinge_joint
 from cipcore.engine import Capabilities
 
@@ -178,38 +179,25 @@ def _block(n: list[float], jac: list[list[float]], minv: list[list[float]], sign
     return (j0, j1), (minv[0][0] * j0 + minv[0][1] * j1, minv[1][0] * j0 + minv[1][1] * j1)
 
 
-class DartRollout:
-    """:class:`cip.runner.RolloutBackend` stepping the CIP with DART (module docstring).
+class DartRollout(ModelRollout):
+    """:class:`cip.runner.RolloutBackend` stepping the CIP with DART (module docstring):
+    the realisations one after another, in a Python loop holding the GIL (``threads``
+    ignored; :class:`~cip.engines.rollout.ModelRollout`)."""
 
-    Parameters
-    ----------
-    model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
-        physical parameter, the time step (``model.opt.timestep``) and the state layout.
-    n_realizations : number of realisations (stepped one after another).
-    threads : ignored (the step is a Python loop holding the GIL): the engine's
-        ``threads`` are worker processes (:class:`cip.workers.ProcessBlocks`).
-    """
-
-    @staticmethod
-    def preload() -> None:
-        """Import dartpy (:class:`cip.workers.ProcessBlocks` forks after)."""
-        _dartpy()
+    modules = ("dartpy",)
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = self.geometry = geometry_from_mujoco(model)
-        self.dt = float(model.opt.timestep)
+        super().__init__(model)
+        g = self.geometry
         self.cip = build_model(g)
         self.nc = g.n_controllers
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...; per controller (x, theta)
-        self.mj_q = 1 + np.stack([np.array(g.qpos_x), np.array(g.qpos_theta)], axis=1)
-        self.mj_v = 1 + model.nq + np.stack([np.array(g.dof_x), np.array(g.dof_theta)], axis=1)
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
+        # per controller (x, theta) in mjSTATE_FULLPHYSICS
+        self.mj_q = np.stack([self.mj_x, self.mj_theta], axis=1)
+        self.mj_v = np.stack([self.mj_xdot, self.mj_omega], axis=1)
         self.c_tip = list(g.tip_damping)
         self.c_cart = list(g.cart_damping)
         self.rod = g.rod_length
         self._force = np.zeros(3)  # the tip damper's world force (N), set each step
-        self._failed = 0
 
     def _step(self, f_cart: list[float]) -> None:
         """One step of dt of the skeletons' state with motor forces ``f_cart`` (C) (N)."""
@@ -255,10 +243,8 @@ class DartRollout:
         s2.setVelocity(1, v21 + lam * w2[1])
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
-        R, n = ctrl.shape[:2]
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        R = ctrl.shape[0]
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         skels = self.cip.skeletons
         for r in range(R):
             q0, v0 = state[r, self.mj_q], state[r, self.mj_v]  # (C, 2) each
@@ -287,30 +273,18 @@ class DartRollout:
                 qv = np.array(rows)  # (k, C, 4)
                 out[r, : len(rows)][:, self.mj_q] = qv[..., :2]
                 out[r, : len(rows)][:, self.mj_v] = qv[..., 2:]
-            if bad is not None:  # NaN from there: the drivers read it as divergence
-                self._failed += 1
-                out[r, bad:, 1:] = np.nan
-
-    def warnings(self) -> int:
-        """Realisations whose state or force left :data:`MAXVAL` (then NaN to the end of
-        the chunk)."""
-        return self._failed
+            if bad is not None:  # a state or force beyond MAXVAL: NaN from there
+                self.diverged(out, r, bad)
 
 
 ENGINE = RigidBodyEngine(
     name="dart",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
-        deterministic=True,
         family="DART",
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="semi-implicit Euler (DART)",
         order=1.0,
         rod="rigid",
-        twin=None,
     ),
     backend=lambda: DartRollout,
     requires=("dartpy",),

@@ -80,15 +80,15 @@ import numpy as np
 from cip.engines.drake_plant import (
     build_plant,
     generalized_forces,
-    geometry_from_mujoco,
     load_pydrake,
 )
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.mjcf_params import ModelMapping
 from cipcore.engine import Capabilities
 
 
-class DrakeRollout:
+class DrakeRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP in Drake's discrete ``MultibodyPlant``.
 
     One Drake ``Context`` per realisation, stepped one SAP step at a time.  The
@@ -113,9 +113,8 @@ class DrakeRollout:
         load_pydrake()
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = geometry_from_mujoco(model)
-        self.geometry = g
-        self.dt = g.timestep
+        super().__init__(model)
+        g = self.geometry
         c = self.cip = build_plant(g)
         plant = self.plant = c.plant
         self.port = plant.get_applied_generalized_force_input_port()
@@ -124,15 +123,8 @@ class DrakeRollout:
         nq = plant.num_positions()
         self.nx = nq + plant.num_velocities()
         self.theta, self.v_cart, self.omega = c.q_theta, nq + c.v_x, nq + c.v_theta
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
-        self.mj_index = np.r_[
-            1 + np.array(g.qpos_x), 1 + np.array(g.qpos_theta),
-            1 + model.nq + np.array(g.dof_x), 1 + model.nq + np.array(g.dof_theta),
-        ]  # fmt: skip
+        self.mj_index = np.r_[self.mj_x, self.mj_theta, self.mj_xdot, self.mj_omega]
         self.drake_index = np.r_[c.q_x, c.q_theta, nq + c.v_x, nq + c.v_theta]
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
-        self._failed = 0
 
     def _advance(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, int]:
         """States (R, n, nx) after each of n steps from Drake states ``x`` (R, nx) under
@@ -167,19 +159,12 @@ class DrakeRollout:
         return xs, failed
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
-        R, n = ctrl.shape[:2]
-        x = np.zeros((R, self.nx))
+        x = np.zeros((ctrl.shape[0], self.nx))
         x[:, self.drake_index] = state[:, self.mj_index]
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         xs, failed = self._advance(x, u)
-        self._failed += failed
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
+        self._failed += failed  # SAP failed to converge: those realisations are NaN in xs
         out[:, :, self.mj_index] = xs[:, :, self.drake_index]
-
-    def warnings(self) -> int:
-        """Number of failed Drake discrete steps (the realisation then reads as diverged)."""
-        return self._failed
 
 
 #: SAP's near-rigid parameter beta of Drake's distance constraint (measured, module docstring).
@@ -204,12 +189,7 @@ def twin_terms(mapping: ModelMapping) -> dict:
 ENGINE = RigidBodyEngine(
     name="drake",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
         family="Drake",
-        trajectory_tolerance=1e-2,
         integrator="SAP",
         rod="rigid",
         twin="semi-implicit Euler with explicit forces; the rigid rod as SAP's near-rigid "

@@ -63,8 +63,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.mjcf_params import ModelMapping
 from cipcore.engine import Capabilities
 from cipcore.params import ParameterError
@@ -195,7 +196,7 @@ class _Realization:
         return self.q, self.qd
 
 
-class ExudynRollout:
+class ExudynRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP in Exudyn (see the module docstring).
 
     Parameters
@@ -213,34 +214,25 @@ class ExudynRollout:
         import exudyn.itemInterface  # noqa: F401
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = geometry_from_mujoco(model)
+        super().__init__(model)
+        g = self.geometry
         for i in range(g.n_controllers):
             dropped = max(g.bob_inertia[i]) - MJCF_POINT_INERTIA
             if dropped > POINT_MASS_INERTIA * g.bob_mass[i] * g.pendulum_length[i] ** 2:
                 raise ParameterError(
                     "the exudyn engine models the bob as a point mass: bob_radius must be 0"
                 )
-        self.geometry = g
-        self.dt = g.timestep
         self.nc = g.n_controllers
         self.L = np.asarray(g.pendulum_length)
         self.x0 = np.asarray(g.cart_x0)
         self.c_tip = np.asarray(g.tip_damping)
         self.c_cart = np.asarray(g.cart_damping)
-        nq = model.nq
-        self.ix = 1 + np.array(g.qpos_x)
-        self.ith = 1 + np.array(g.qpos_theta)
-        self.ivx = 1 + nq + np.array(g.dof_x)
-        self.iom = 1 + nq + np.array(g.dof_theta)
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
         self.systems: list[_Realization | None] = [None] * n_realizations
         self.last: list[np.ndarray | None] = [None] * n_realizations
-        self._failed = 0
 
     def to_exudyn(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """ODE2 displacements and velocities (per controller: cart x, y, bob x, y) of ``s``."""
-        x, th, v, om = s[self.ix], s[self.ith], s[self.ivx], s[self.iom]
+        x, th, v, om = s[self.mj_x], s[self.mj_theta], s[self.mj_xdot], s[self.mj_omega]
         L = self.L
         q = np.stack([x, 0 * x, x + L * np.sin(th), L * np.cos(th) - L], axis=1).ravel()
         qd = np.stack([v, 0 * v, v + L * np.cos(th) * om, -L * np.sin(th) * om], axis=1).ravel()
@@ -251,16 +243,14 @@ class ExudynRollout:
         q, qd = q.reshape(self.nc, 4), qd.reshape(self.nc, 4)
         dx, dy = q[:, 2] - q[:, 0], self.L + q[:, 3] - q[:, 1]
         dvx, dvy = qd[:, 2] - qd[:, 0], qd[:, 3] - qd[:, 1]
-        s[self.ix] = q[:, 0]
-        s[self.ivx] = qd[:, 0]
-        s[self.ith] = np.arctan2(dx, dy)
-        s[self.iom] = (dy * dvx - dx * dvy) / (dx * dx + dy * dy)
+        s[self.mj_x] = q[:, 0]
+        s[self.mj_xdot] = qd[:, 0]
+        s[self.mj_theta] = np.arctan2(dx, dy)
+        s[self.mj_omega] = (dy * dvx - dx * dvy) / (dx * dx + dy * dy)
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         R, n = ctrl.shape[:2]
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         for r in range(R):
             if not np.all(np.isfinite(state[r])):
                 out[r, :, 1:] = np.nan
@@ -277,26 +267,17 @@ class ExudynRollout:
                 f_cart = u[r, k] - self.c_cart * qd4[:, 0]
                 try:
                     q, qd = sysr.step(f_cart, f_bob)
-                except RuntimeError:
-                    self._failed += 1
-                    out[r, k:, 1:] = np.nan
+                except RuntimeError:  # a failed Exudyn step: the realisation diverged
+                    self.diverged(out, r, k)
                     self.systems[r] = None
                     break
                 self.from_exudyn(q, qd, out[r, k])
             self.last[r] = out[r, -1].copy()
 
-    def warnings(self) -> int:
-        """Number of failed Exudyn steps (the realisation then reads as diverged)."""
-        return self._failed
-
 
 ENGINE = RigidBodyEngine(
     name="exudyn",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
         family="Exudyn",
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="Newmark(beta=1/2, gamma=1)",

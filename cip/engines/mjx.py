@@ -373,14 +373,7 @@ class MJXRollout:
 ENGINE = RigidBodyEngine(
     name="mjx",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
         family="MuJoCo (XLA)",
-        trajectory_tolerance=1e-2,
-        integrator="Euler",
-        rod="soft",
         twin="the model file's terms, its soft rod (solref/solimp) and its integrator "
         "(Euler, implicitfast or RK4) as MuJoCo defines them",
         solver=SOLVER,

@@ -69,8 +69,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.names import cart_joint, hinge_joint, tip_site
 from cipcore.engine import Capabilities
 
@@ -142,44 +143,30 @@ def build_model(g: CIPGeometry) -> PinocchioCIP:
     )
 
 
-class PinocchioRollout:
-    """:class:`cip.runner.RolloutBackend` stepping the CIP with Pinocchio (module docstring).
+class PinocchioRollout(ModelRollout):
+    """:class:`cip.runner.RolloutBackend` stepping the CIP with Pinocchio (module docstring):
+    the realisations one after another, in a Python loop holding the GIL (``threads``
+    ignored; :class:`~cip.engines.rollout.ModelRollout`)."""
 
-    Parameters
-    ----------
-    model : the compiled MuJoCo CIP (:func:`cip.model.build`): the source of every
-        physical parameter, the time step (``model.opt.timestep``) and the state layout.
-    n_realizations : number of realisations (stepped one after another).
-    threads : ignored (the step is a Python loop holding the GIL): the engine's
-        ``threads`` are worker processes (:class:`cip.workers.ProcessBlocks`).
-    """
-
-    @staticmethod
-    def preload() -> None:
-        """Import Pinocchio (:class:`cip.workers.ProcessBlocks` forks after)."""
-        _pinocchio()
+    modules = ("pinocchio",)
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
+        super().__init__(model)
         self.pin = _pinocchio()
-        g = self.geometry = geometry_from_mujoco(model)
-        self.dt = float(model.opt.timestep)
+        g = self.geometry
         c = self.cip = build_model(g)
         self.model = c.model
         self.data = c.model.createData()
         self.nq, self.nv = c.model.nq, c.model.nv
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
-        self.mj_q = 1 + np.r_[np.array(g.qpos_x), np.array(g.qpos_theta)]
-        self.mj_v = 1 + model.nq + np.r_[np.array(g.dof_x), np.array(g.dof_theta)]
+        self.mj_q = np.r_[self.mj_x, self.mj_theta]
+        self.mj_v = np.r_[self.mj_xdot, self.mj_omega]
         self.pin_q = np.r_[c.q_x, c.q_theta]
         self.pin_v = np.r_[c.v_x, c.v_theta]
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
         self.c_tip = np.array(g.tip_damping)
         self.c_cart = np.array(g.cart_damping)
         self.rod = g.rod_length
         self.frame = self.pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
         self.lower = np.tril_indices(self.nv, -1)
-        self._failed = 0
 
     def _step(self, q: np.ndarray, v: np.ndarray, f_cart: np.ndarray):
         """(q+, v+) after one step of dt from (q, v) with motor forces ``f_cart`` (C,) (N)."""
@@ -206,9 +193,7 @@ class PinocchioRollout:
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         R, n = ctrl.shape[:2]
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         qs, vs = np.empty((n, self.nq)), np.empty((n, self.nv))
         for r in range(R):
             q, v = np.zeros(self.nq), np.zeros(self.nv)
@@ -226,28 +211,17 @@ class PinocchioRollout:
             # the drivers read NaN as divergence
             bad = ~(np.isfinite(qs).all(axis=1) & np.isfinite(vs).all(axis=1))
             if bad.any():
-                self._failed += 1
-                out[r, int(np.argmax(bad)) :, 1:] = np.nan
-
-    def warnings(self) -> int:
-        """Realisations whose state became non-finite (then NaN to the end of the chunk)."""
-        return self._failed
+                self.diverged(out, r, int(np.argmax(bad)))
 
 
 ENGINE = RigidBodyEngine(
     name="pinocchio",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
-        deterministic=True,
         family="Pinocchio",
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="semi-implicit Euler (ABA)",
         order=1.0,
         rod="rigid",
-        twin=None,
     ),
     backend=lambda: PinocchioRollout,
     requires=("pinocchio",),

@@ -526,7 +526,6 @@ def process_engine(
     return RigidBodyEngine(
         name=name,
         capabilities=Capabilities(precision="float64", device="cpu", rigid_body=True,
-                                  linearize=False, deterministic=True,
                                   family="external process", trajectory_tolerance=1e-2,
                                   **terms["caps"]),
         backend=lambda: backend,

@@ -13,7 +13,7 @@ import functools
 import multiprocessing as mp
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Unpack
+from typing import Any
 
 import numpy as np
 
@@ -25,16 +25,11 @@ from cip.runner import CIPRunner, MujocoRollout, RigidBody, RolloutBackend
 from cip.simulate import simulate_full
 from cip.workers import ProcessBlocks
 from cipcore.driver import default_threads
-from cipcore.engine import (
-    Capabilities,
-    LyapunovOptions,
-    SimulateOptions,
-    check_options,
-)
+from cipcore.engine import Capabilities, EngineMethods
 from cipcore.models import BalanceModel, get_model
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
-from cipcore.scenario import engine_call, flat_options
+from cipcore.scenario import Scenario, flat_options
 from cipcore.schema import Trajectory
 
 #: the flat options of the engine's methods that name the rigid body (cip.runner.RigidBody)
@@ -86,7 +81,7 @@ class RigidBodyChunks:
 
 
 @dataclass
-class RigidBodyEngine:
+class RigidBodyEngine(EngineMethods):
     """A rigid-body CIP engine: a name, its capabilities and its rollout backend.
 
     ``backend`` is a zero-argument callable returning the backend class (so that
@@ -186,7 +181,12 @@ class RigidBodyEngine:
         )  # fmt: skip
         return RigidBodyChunks(r)
 
-    def _place_threads(self, options: dict[str, Any], work: int) -> None:
+    def accepted(self, method: str) -> frozenset[str]:
+        if method == "simulate":
+            return _body_options(simulate_full, ("amplitude",))
+        return _body_options(lyapunov_full, ())
+
+    def place(self, method: str, options: dict[str, Any], work: int) -> None:
         """Set the drivers' ``threads`` and ``backend`` options in place: capped at
         ``max_threads``; for a backend whose step holds the GIL, each of the
         ``threads`` driver blocks in a worker process of its own (the same numbers for
@@ -206,38 +206,13 @@ class RigidBodyEngine:
             options["threads"] = workers
         options["backend"] = backend
 
-    def simulate(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        duration: float,
-        n_realizations: int = 1,
-        seed: int = 0,
-        **options: Unpack[SimulateOptions],
-    ) -> Trajectory:
-        check_options(self.name, "simulate", options, _body_options(simulate_full, ("amplitude",)))
-        n = getattr(options.get("noise"), "n_realizations", n_realizations)
-        self._place_threads(options, n * round(duration / params.dt))
-        call = (get_model(model).name, params, duration, n_realizations, seed)
-        scenario, grouped = engine_call(call, options)
+    def simulate_scenario(self, scenario: Scenario, grouped: dict[str, Any]) -> Trajectory:
         tr = simulate_full(scenario, **_with_body(grouped, self.name))
         if not self.integrators:  # the engine's own stepper ran, whatever the file says
             tr.attrs["stepper"] = self.capabilities.integrator
         return tr
 
-    def lyapunov(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        duration: float,
-        n_realizations: int = 8,
-        seed: int = 0,
-        **options: Unpack[LyapunovOptions],
-    ) -> LyapunovResult:
-        check_options(self.name, "lyapunov", options, _body_options(lyapunov_full, ()))
-        self._place_threads(options, 2 * n_realizations * round(duration / params.dt))
-        call = (get_model(model).name, params, duration, n_realizations, seed)
-        scenario, grouped = engine_call(call, options)
+    def lyapunov_scenario(self, scenario: Scenario, grouped: dict[str, Any]) -> LyapunovResult:
         return lyapunov_full(scenario, **_with_body(grouped, self.name))
 
     def linearize(self, model: BalanceModel | str, physical: CIPParams | None = None):
@@ -251,15 +226,8 @@ class RigidBodyEngine:
 MUJOCO = RigidBodyEngine(
     name="mujoco",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
         linearize=True,
-        deterministic=True,
         family="MuJoCo",
-        trajectory_tolerance=1e-2,
-        integrator="Euler",
-        rod="soft",
         twin="the model file's terms, its soft rod (solref/solimp) and its integrator "
         "(Euler, implicit, implicitfast or RK4) as MuJoCo defines them",
     ),

@@ -61,8 +61,9 @@ import math
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, generalized_forces, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry, generalized_forces
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.mjcf_params import ModelMapping
 from cipcore.engine import Capabilities
 
@@ -172,7 +173,7 @@ class _Model:
         return mgr
 
 
-class SimbodyRollout:
+class SimbodyRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP in Simbody (see the module docstring).
 
     Parameters
@@ -189,27 +190,20 @@ class SimbodyRollout:
         _opensim()
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = geometry_from_mujoco(model)
-        self.geometry = g
+        super().__init__(model)
+        g = self.geometry
         self.osim_model = _Model(g)
-        self.dt = g.timestep
         self.nc = g.n_controllers
-        nq = model.nq
-        self.mj_q = np.r_[1 + np.array(g.qpos_x), 1 + np.array(g.qpos_theta)]
-        self.mj_u = np.r_[1 + nq + np.array(g.dof_x), 1 + nq + np.array(g.dof_theta)]
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
+        self.mj_q = np.r_[self.mj_x, self.mj_theta]
+        self.mj_u = np.r_[self.mj_xdot, self.mj_omega]
         self.managers: list = [None] * n_realizations
         self.steps = [0] * n_realizations
         self.last: list[np.ndarray | None] = [None] * n_realizations
-        self._failed = 0
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         om, nc, dt = self.osim_model, self.nc, self.dt
         R, n = ctrl.shape[:2]
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + dt * np.arange(1, n + 1)
-        u_ctrl = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u_ctrl = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         qi = om.q_index
         for r in range(R):
             if not np.all(np.isfinite(state[r])):
@@ -233,8 +227,7 @@ class SimbodyRollout:
                 try:
                     s = mgr.integrate(self.steps[r] * dt)
                 except RuntimeError:  # Simbody failed (e.g. the projection): diverged
-                    self._failed += 1
-                    out[r, k:, 1:] = np.nan
+                    self.diverged(out, r, k)
                     self.managers[r] = None
                     break
                 x, v = s.getQ().to_numpy()[qi], s.getU().to_numpy()[qi]
@@ -242,18 +235,10 @@ class SimbodyRollout:
                 out[r, k, self.mj_u] = v
             self.last[r] = out[r, -1].copy()
 
-    def warnings(self) -> int:
-        """Number of failed Simbody steps (the realisation then reads as diverged)."""
-        return self._failed
-
 
 ENGINE = RigidBodyEngine(
     name="simbody",
     capabilities=Capabilities(
-        precision="float64",
-        device="cpu",
-        rigid_body=True,
-        linearize=False,
         family="Simbody",
         trajectory_tolerance=TRAJECTORY_TOLERANCE,
         integrator="RK-Merson (fixed step)",

@@ -149,14 +149,8 @@ def _capabilities() -> Capabilities:
         precision="float32",
         device=declared_device(),
         kernels="warp",
-        rigid_body=True,
-        linearize=False,
-        deterministic=True,
         family="MuJoCo (Warp)",
-        trajectory_tolerance=1e-2,
         packs_points=True,
-        integrator="Euler",
-        rod="soft",
         twin="the model file's terms, soft rod and Euler in float64; the engine computes in "
         "float32, so its tolerance is its float32 floor",
     )

@@ -42,6 +42,7 @@ wp.config.quiet = True  # before mujoco_warp initialises warp: no banner
 import mujoco_warp as mjw  # noqa: E402
 
 from cip.names import cart_joint, hinge_joint, motor  # noqa: E402
+from cip.runner import schema_fields  # noqa: E402
 from cipcore.control_warp import delayed_random_gain  # noqa: E402
 
 wp.init()
@@ -431,12 +432,4 @@ class WarpBatch:
         v = rec[..., self.nq + self.i_vx]
         e = L * np.sin(th)
         edot = L * np.cos(th) * rec[..., self.nq + self.i_om]
-        return {
-            "tip_position": x + e,
-            "tip_velocity": v + edot,
-            "base_position": x,
-            "base_velocity": v,
-            "balancing_error": e,
-            "balancing_error_velocity": edot,
-            "angle": th,
-        }
+        return schema_fields(x, v, e, edot, th)

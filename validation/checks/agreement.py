@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import warnings
 import zlib
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from typing import TypedDict, Unpack
 
 import numpy as np
 
@@ -44,21 +46,33 @@ from validation.profiles import PAPER_BETA, TRAJECTORY_WINDOW, Profile
 SERIES_FIELDS = ("balancing_error", "balancing_error_velocity", "tip_velocity", "base_velocity")
 
 
+class TargetKeywords(TypedDict, total=False):
+    """The engine under validation as the run's stages (:func:`lyapunov_checks`,
+    :func:`series_checks`, :func:`amplitude_scan`) take it: the fields of
+    :class:`cipcore.scenario.EngineTarget` (:meth:`~cipcore.scenario.EngineTarget.as_kwargs`),
+    each defaulting as there (MuJoCo on the shipped files with their integrators).
+
+    engine : a registered rigid-body engine.  integrator : MuJoCo's integrator name run
+    instead of the files'.  files : model name -> a user's MJCF file.
+    """
+
+    files: Mapping[str, str] | None
+    engine: str
+    integrator: str | None
+
+
 def lyapunov_checks(
-    profile: Profile,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    profile: Profile, threads: int | None, **target: Unpack[TargetKeywords]
 ) -> tuple[list[Check], dict]:
     """lambda1 of both engines at each gain of the profile (CI-overlap rule)."""
     from cip.mjcf_params import read_mapping
 
+    t = EngineTarget(**target)
     checks, rows = [], []
-    precision = rigid_engine(engine).capabilities.precision
+    precision = rigid_engine(t.engine).capabilities.precision
     epsilon = profile.lyapunov_epsilon(precision)
     for model, gains in profile.lyapunov_gains.items():
-        m = model_file(model, files, integrator)
+        m = model_file(model, t.files, t.integrator)
         phys = read_mapping(m).physical()
         for beta in gains:
             p = BalanceParams(beta=beta)
@@ -66,7 +80,7 @@ def lyapunov_checks(
             scn = Scenario(model, p, profile.lyapunov_duration, profile.lyapunov_realizations,
                            seed)  # fmt: skip
             red = lyapunov(scn, execution=Execution(threads=threads))
-            full = rigid_engine(engine).lyapunov(
+            full = rigid_engine(t.engine).lyapunov(
                 model, p, scn.duration, scn.realizations, seed, physical=phys, mj_model=m,
                 epsilon=epsilon, threads=threads,
             )  # fmt: skip
@@ -210,6 +224,18 @@ def run_twin(
     return simulate_twin(scenario, tw, recording=rec, execution=Execution(threads=threads))
 
 
+def bands_check(name: str, bands: list[dict], tolerance: str, details: str) -> Check:
+    """``agreement.spectrum_bands.<name>``: one verdict per log-spaced band of the log10 PSD
+    (``bands``: each band's ``centre_hz``, ``status`` and values), the worst band decides."""
+    return Check(
+        name=f"agreement.spectrum_bands.{name}",
+        status=worst([b["status"] for b in bands]),
+        values={"bands": bands},
+        tolerance=tolerance,
+        details=f"Welch PSD of the balancing error (Fig. pwsp); {details}",
+    )
+
+
 def compare_series(
     model: str,
     mf: SeriesMetrics,
@@ -264,7 +290,7 @@ def compare_series(
 
     paired("log10_rms", mf.log_rms, mr.log_rms, "log10 RMS of the balancing error (Fig. rms)",
            tw("log_rms"), ev("log_rms"))  # fmt: skip
-    band_status, band_values = [], []
+    bands = []
     for k, fc in enumerate(mr.band_centres):
         tb = None if mt is None else mt.band_log_power[:, k]
         exp = None if tb is None else tb - mr.band_log_power[:, k]
@@ -278,16 +304,14 @@ def compare_series(
             )
         if tb is not None:
             twin_shift(f"spectrum_band_{k}", mf.band_log_power[:, k], tb)
-        band_status.append(st)
-        band_values.append({"centre_hz": float(fc), "status": st, **v})
+        bands.append({"centre_hz": float(fc), "status": st, **v})
     checks.append(
-        Check(
-            name=f"agreement.spectrum_bands.{model}{label}",
-            status=worst(band_status),
-            values={"bands": band_values},
-            tolerance="paired TOST per log-spaced band of log10 PSD (margin as for the RMS); "
-            "worst band decides",
-            details=f"Welch PSD of the balancing error (Fig. pwsp); {details}",
+        bands_check(
+            f"{model}{label}",
+            bands,
+            "paired TOST per log-spaced band of log10 PSD (margin as for the RMS); worst band "
+            "decides",
+            details,
         )
     )
     slope_status = []
@@ -401,12 +425,19 @@ def lyapunov_epsilon_note(profile: Profile, precision: str) -> str:
     )
 
 
+def judged_by_refinement(checks: list[Check]) -> set[str]:
+    """The models on which the engine has no exact twin, judged by refinement instead
+    (:mod:`validation.checks.refinement`): those whose ``twin.trajectory.<model>`` check
+    (:func:`instrument_checks`) is not applicable."""
+    return {
+        c.name.rsplit(".", 1)[1]
+        for c in checks
+        if c.name.startswith("twin.trajectory.") and c.status == NOT_APPLICABLE
+    }
+
+
 def series_checks(
-    profile: Profile,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    profile: Profile, threads: int | None, **target: Unpack[TargetKeywords]
 ) -> tuple[list[Check], dict]:
     """Time-series agreement at the paper's gains, small amplitude, and the direct checks.
 
@@ -414,19 +445,15 @@ def series_checks(
     the exact twin (every metric), then :func:`instrument_checks` (twin trajectory
     at 1e-6 m, rod, measured delay, declared model).
     """
+    t = EngineTarget(**target)
     checks, data = [], {}
-    precision = rigid_engine(engine).capabilities.precision
+    precision = rigid_engine(t.engine).capabilities.precision
     # the direct checks first (their own seed): they decide each model's tier, which says
     # whether the twin's metrics judge the engine (listed after the series checks)
     direct = instrument_checks(
-        profile.seed_for("twin"), profile.series_realizations, threads,
-        target=EngineTarget(engine, integrator, files),
-    )  # fmt: skip
-    by_refinement = {
-        c.name.rsplit(".", 1)[1]
-        for c in direct
-        if c.name.startswith("twin.trajectory.") and c.status == NOT_APPLICABLE
-    }
+        profile.seed_for("twin"), profile.series_realizations, threads, target=t
+    )
+    by_refinement = judged_by_refinement(direct)
     # an engine judged by refinement is compared with the reduced model through the
     # known stepper nearest its observed order (like with like: MuJoCo's RK4 for an order
     # of 2 or more, else Euler), both for the twin under the same noise and the envelope
@@ -441,7 +468,7 @@ def series_checks(
         scn = Scenario(model, BalanceParams(beta=beta), profile.series_duration,
                        profile.series_realizations, seed, amplitude)  # fmt: skip
         got = series_model_checks(
-            scn, EngineTarget(engine, integrator, files), profile, threads=threads,
+            scn, t, profile, threads=threads,
             nearest=nearest.get(model) if model in by_refinement else None, precision=precision,
         )  # fmt: skip
         checks += got[0]
@@ -449,49 +476,54 @@ def series_checks(
     return checks + direct, data
 
 
+class SeriesOptions(TypedDict):
+    """How :func:`series_model_checks` and :func:`multifidelity_series` run one model's series.
+
+    threads : worker threads (None: all cores).  nearest : the MuJoCo integrator of the
+    nearest twin for an engine judged by refinement (None: the engine's own exact twin).
+    precision : the engine's floating-point type (``capabilities.precision``), which sets
+    the series amplitude (:meth:`validation.profiles.Profile.series_amplitude`).
+    """
+
+    threads: int | None
+    nearest: str | None
+    precision: str
+
+
+def twin_of(model: str, target: EngineTarget, nearest: str | None) -> tuple[EngineTarget, str]:
+    """The twin that judges ``target`` on ``model`` and the envelope twin's stepper: MuJoCo
+    with the integrator ``nearest`` for an engine judged by refinement, else the engine's
+    own exact twin and its stepper (:func:`twin_integrator`)."""
+    if nearest:
+        return EngineTarget("mujoco", nearest, target.files), nearest
+    return target, twin_integrator(model, target.files, target.engine, target.integrator)
+
+
 def series_model_checks(
-    scenario: Scenario,
-    target: EngineTarget,
-    profile: Profile,
-    *,
-    threads: int | None,
-    nearest: str | None,
-    precision: str,
+    scenario: Scenario, target: EngineTarget, profile: Profile, **options: Unpack[SeriesOptions]
 ) -> tuple[list[Check], dict]:
     """One model's time-series checks (:func:`series_checks`): full vs reduced and full vs
     its twin, by the multifidelity estimator where the profile switches it on and it pays
     (:func:`multifidelity_series`), else plainly.
 
     ``scenario`` and ``target`` as :func:`run_pair`'s, every ``profile.decimate``-th
-    step recorded on ``threads``; ``nearest``: the MuJoCo integrator of the nearest twin
-    for an engine judged by refinement (None: the engine's own exact twin).  Returns
+    step recorded on ``options["threads"]`` (:class:`SeriesOptions`).  Returns
     (checks, the stage's data for the model).
     """
     from validation.checks.conformance import run_envelope_twin
 
+    threads, nearest, precision = options["threads"], options["nearest"], options["precision"]
     model, beta, amplitude = scenario.model, scenario.params.beta, scenario.amplitude
-    seed, files, engine, integrator = (
-        scenario.seed,
-        target.files,
-        target.engine,
-        target.integrator,
-    )
     fallback = ""
     if profile.mf_engine_realizations:  # a str: the twin does not pay, plain sampling
-        got = multifidelity_series(
-            scenario, target, profile, threads=threads, nearest=nearest, precision=precision
-        )
+        got = multifidelity_series(scenario, target, profile, **options)
         if not isinstance(got, str):
             return got
         fallback = f"; {got}"
     run = {"decimate": profile.decimate, "threads": threads}
     full, red = run_pair(scenario, target, **run)
-    if nearest:
-        twin = run_twin(scenario, EngineTarget("mujoco", nearest, files), **run)
-        env_integrator = nearest
-    else:
-        twin = run_twin(scenario, target, **run)
-        env_integrator = twin_integrator(model, files, engine, integrator)
+    twin_target, env_integrator = twin_of(model, target, nearest)
+    twin = run_twin(scenario, twin_target, **run)
     rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
     env = run_envelope_twin(scenario, recording=rec, threads=threads, integrator=env_integrator)
     mf = series_metrics(full, profile, 0.1, profile.spectrum_segment)
@@ -501,7 +533,7 @@ def series_model_checks(
     max_angle = float(np.max(full.attrs["max_abs_angle"]))
     details = (
         f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
-        f"{profile.series_realizations} x {profile.series_duration:g} s, seed {seed}, "
+        f"{profile.series_realizations} x {profile.series_duration:g} s, seed {scenario.seed}, "
         f"largest |theta| {max_angle:.2g} rad{fallback}"
     )
     series = compare_series(model, mf, mr, "", details, mt, me)
@@ -629,7 +661,7 @@ def _log_spectra(m: SeriesMetrics, profile: Profile) -> tuple[np.ndarray, np.nda
     lo = max(profile.spectrum_band[0], 2.0 / profile.spectrum_segment)
     hi = profile.spectrum_band[1]
     keep = (f >= lo) & (f <= hi)
-    return metrics._log_bins(f[keep], np.atleast_2d(s)[:, keep], lo, hi, 16)
+    return metrics.log_bins(f[keep], np.atleast_2d(s)[:, keep], lo, hi, 16)
 
 
 def mf_slopes(full: SeriesMetrics, twin: SeriesMetrics, red: SeriesMetrics, profile: Profile,
@@ -655,9 +687,9 @@ def mf_slopes(full: SeriesMetrics, twin: SeriesMetrics, red: SeriesMetrics, prof
     alpha = np.where(one, alpha[:1], alpha)
     xall = np.concatenate([xp, lt[ix]], axis=1).mean(axis=1)
     est = ye.mean(axis=1) + alpha * (xall - xp.mean(axis=1))  # (1 + nb, bins)
-    fits = metrics._broken_lines(lf, est)
+    fits = metrics.broken_lines(lf, est)
     # the twin's own slopes over its m: plain sampling's SE at n_plain, scaled from them
-    twin_se = np.std(metrics._broken_lines(lf, xall[1:]), axis=0, ddof=1) * np.sqrt(m / n_plain)
+    twin_se = np.std(metrics.broken_lines(lf, xall[1:]), axis=0, ddof=1) * np.sqrt(m / n_plain)
     statuses, values, ratio = [], {}, 0.0
     for k, which in enumerate(("slope_low", "slope_high")):
         v, se = float(fits[0, k]), float(np.std(fits[1:, k], ddof=1))
@@ -694,24 +726,16 @@ def compare_series_mf(
                             tolerance=MF_RULE, details=f"{what}; {details}"))  # fmt: skip
 
     paired("log10_rms", "log_rms", "log10 RMS of the balancing error (Fig. rms)")
-    band_status, band_values = [], []
+    bands = []
     for k, fc in enumerate(red.band_centres):
         st, v, ratio = mf_equivalence(
             full.band_log_power[:, k], red.band_log_power[:, k], twin.band_log_power[:, k],
             env.band_log_power[:, k], n_plain, _mf_rng(profile, model, f"band{k}"),
         )  # fmt: skip
         ratios.append(ratio)
-        band_status.append(st)
-        band_values.append({"centre_hz": float(fc), "status": st, **v})
-    checks.append(
-        Check(
-            name=f"agreement.spectrum_bands.{model}",
-            status=worst(band_status),
-            values={"bands": band_values},
-            tolerance=MF_RULE + "; per log-spaced band of log10 PSD, worst band decides",
-            details=f"Welch PSD of the balancing error (Fig. pwsp); {details}",
-        )
-    )
+        bands.append({"centre_hz": float(fc), "status": st, **v})
+    tolerance = MF_RULE + "; per log-spaced band of log10 PSD, worst band decides"
+    checks.append(bands_check(model, bands, tolerance, details))
     st, v, ratio = mf_slopes(full, twin, red, profile, n_plain, _mf_rng(profile, model, "slopes"))
     ratios.append(ratio)
     checks.append(Check(name=f"agreement.spectral_slopes.{model}", status=st, values=v,
@@ -732,20 +756,12 @@ def compare_series_mf(
 
 
 def multifidelity_series(
-    scenario: Scenario,
-    target: EngineTarget,
-    profile: Profile,
-    *,
-    threads: int | None,
-    nearest: str | None,
-    precision: str,
+    scenario: Scenario, target: EngineTarget, profile: Profile, **options: Unpack[SeriesOptions]
 ) -> tuple[list[Check], dict] | str:
     """One model's series checks with the engine on ``profile.mf_engine_realizations``.
 
-    ``scenario``, ``target``, ``threads``: :func:`series_model_checks`' (the scenario's
-    realisations = the plain allocation, series_realizations);
-    ``nearest``: the MuJoCo integrator of the nearest twin for an engine judged by
-    refinement (None: the engine's own exact twin).  The twin, the reduced model and
+    ``scenario``, ``target``, ``options``: :func:`series_model_checks`' (the scenario's
+    realisations = the plain allocation, series_realizations).  The twin, the reduced model and
     the envelope twin run ``profile.mf_twin_realizations`` under the same noise (the
     first n are the engine's).  Returns why, a line for the plain checks' details (the
     caller samples plainly), when at the correlations measured some check's interval
@@ -757,6 +773,7 @@ def multifidelity_series(
     from validation.checks import multifidelity as mfe
     from validation.checks.conformance import run_envelope_twin
 
+    threads, nearest, precision = options["threads"], options["nearest"], options["precision"]
     model, beta, amplitude = scenario.model, scenario.params.beta, scenario.amplitude
     duration, n_plain, seed = scenario.duration, scenario.realizations, scenario.seed
     n, m = profile.mf_engine_realizations, max(profile.mf_twin_realizations, n_plain)
@@ -765,14 +782,13 @@ def multifidelity_series(
                              f"series_realizations = {n_plain}), got {n}")  # fmt: skip
     cheap = replace(scenario, realizations=m)
     run = {"decimate": profile.decimate, "threads": threads}
+    twin_target, stepper = twin_of(model, target, nearest)
     t0 = time.perf_counter()
     full = run_full(replace(scenario, realizations=n), target, **run)
     t1 = time.perf_counter()
     red = run_reduced(cheap, **run)
-    twin_target = EngineTarget("mujoco", nearest, target.files) if nearest else target
     twin = run_twin(cheap, twin_target, **run)
     w = (t1 - t0) / n / max((time.perf_counter() - t1) / m, 1e-9)
-    stepper = nearest or twin_integrator(model, target.files, target.engine, target.integrator)
     rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
     env = run_envelope_twin(cheap, recording=rec, threads=threads, integrator=stepper)
     runs = {"full": full, "reduced": red, "twin": twin, "envelope": env,
@@ -808,11 +824,7 @@ SMALL_ANGLE_FLOOR = float(np.log10(1.001))
 
 
 def amplitude_scan(
-    profile: Profile,
-    threads: int | None,
-    files: dict[str, str] | None = None,
-    engine: str = "mujoco",
-    integrator: str | None = None,
+    profile: Profile, threads: int | None, **target: Unpack[TargetKeywords]
 ) -> tuple[list[Check], list[dict]]:
     """Agreement of RMS, spectrum bands and trajectory vs initial amplitude.
 
@@ -831,19 +843,19 @@ def amplitude_scan(
     from validation.checks.conformance import bounded_margin, run_envelope_twin
     from validation.checks.divergence import pendulum_length
 
+    t = EngineTarget(**target)
     rows, checks = [], []
     limit = small_angle_limit()
     seg = profile.scan_duration / 4
     for model, beta in PAPER_BETA.items():
         seed = profile.seed_for("scan", model)
-        stepper = twin_integrator(model, files, engine, integrator)
+        stepper = twin_integrator(model, t.files, t.engine, t.integrator)
         for amp in profile.scan_amplitudes:
             scn = Scenario(model, BalanceParams(beta=beta), profile.scan_duration,
                            profile.scan_realizations, seed, amp)  # fmt: skip
-            target = EngineTarget(engine, integrator, files)
             run = {"decimate": profile.decimate, "threads": threads}
-            full, red = run_pair(scn, target, **run)
-            twin = run_twin(scn, target, **run)
+            full, red = run_pair(scn, t, **run)
+            twin = run_twin(scn, t, **run)
             rec = Recording(decimate=profile.decimate, fields=("balancing_error",))
             env = run_envelope_twin(scn, recording=rec, threads=threads, integrator=stepper)
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)

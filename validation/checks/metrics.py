@@ -36,8 +36,15 @@ def power_spectrum(
     return f[1:], s[..., 1:]
 
 
+class _Record:
+    """A result dataclass whose :meth:`as_dict` is its fields as plain values."""
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
 @dataclass
-class PowerLawFit:
+class PowerLawFit(_Record):
     """Two power laws S ~ f^slope_low below f_c and f^slope_high above (Fig. 5).
 
     Uncertainties are bootstrap standard deviations over realisations.
@@ -52,12 +59,17 @@ class PowerLawFit:
     fmin: float
     fmax: float
 
-    def as_dict(self) -> dict:
-        return asdict(self)
 
+def log_bins(
+    f: np.ndarray, s: np.ndarray, fmin: float, fmax: float, n_bins: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Average log10 S in ``n_bins`` log-spaced frequency bins over [fmin, fmax] Hz (equal
+    weight per decade), the binning of :func:`fit_two_power_laws` and :func:`band_log_power`.
 
-def _log_bins(f: np.ndarray, s: np.ndarray, fmin: float, fmax: float, n_bins: int):
-    """Average log10 S in log-spaced frequency bins (equal weight per decade)."""
+    ``f`` (Hz) and ``s`` (..., len(f)), a PSD in any unit; bins holding no frequency are
+    dropped.  Returns (mean log10 f of each bin, mean log10 S: (bins,) for one spectrum,
+    (realisations, bins) for ``s`` shaped (realisations, len(f))).
+    """
     edges = np.geomspace(fmin, fmax, n_bins + 1)
     idx = np.digitize(f, edges) - 1
     lf, ls = [], []
@@ -83,12 +95,16 @@ def _broken_line(lf: np.ndarray, ls: np.ndarray, min_points: int = 3) -> tuple[f
     return best[1], best[2], 10 ** best[3]
 
 
-def _broken_lines(lf: np.ndarray, ls: np.ndarray, min_points: int = 3) -> np.ndarray:
-    """:func:`_broken_line` of every row of ``ls`` (B, len(lf)) at once: (B, 3).
+def broken_lines(lf: np.ndarray, ls: np.ndarray, min_points: int = 3) -> np.ndarray:
+    """The continuous two-segment line of every row of ``ls`` (B, len(lf)) at once through
+    (``lf``, row): (B, 3) of (low slope, high slope, crossover 10**breakpoint), the fit of
+    :func:`fit_two_power_laws` on :func:`log_bins`' log10 frequencies and log10 PSD (the
+    crossover then in Hz).
 
-    The same candidate breakpoints in the same order, each solved by one
-    least-squares call for all rows (the first smallest residual wins, as in
-    :func:`_broken_line`); rows agree with it to rounding.
+    The breakpoint is searched at 5 points between each pair of bins with at least
+    ``min_points`` bins on either side, the same candidates in the same order as
+    :func:`_broken_line`'s, each solved by one least-squares call for all rows (the first
+    smallest residual wins, as there); rows agree with it to rounding.
     """
     ys = np.asarray(ls, dtype=float).T  # (points, B)
     best = np.full((ys.shape[1], 4), [np.inf, np.nan, np.nan, np.nan])
@@ -124,14 +140,14 @@ def fit_two_power_laws(
     s = np.atleast_2d(s)
     keep = (f >= fmin) & (f <= fmax)
     f, s = f[keep], s[:, keep]
-    lf, ls = _log_bins(f, s, fmin, fmax, n_bins)  # ls: (R, bins)
+    lf, ls = log_bins(f, s, fmin, fmax, n_bins)  # ls: (R, bins)
     lo, hi, fc = _broken_line(lf, ls.mean(axis=0))
     rng = np.random.default_rng(seed)
     boots = []
     if s.shape[0] > 1 and n_bootstrap > 0:
         # the same resamples, drawn in the same order, fitted at once
         picks = [rng.integers(0, s.shape[0], s.shape[0]) for _ in range(n_bootstrap)]
-        boots = _broken_lines(lf, np.stack([ls[pick].mean(axis=0) for pick in picks]))
+        boots = broken_lines(lf, np.stack([ls[pick].mean(axis=0) for pick in picks]))
     b = np.asarray(boots) if len(boots) else np.full((1, 3), np.nan)
     return PowerLawFit(
         slope_low=float(lo), slope_high=float(hi), crossover=float(fc),
@@ -144,7 +160,7 @@ def fit_two_power_laws(
 
 def band_log_power(f: np.ndarray, s: np.ndarray, fmin: float, fmax: float, n_bins: int = 8):
     """Per-realisation mean log10 S in ``n_bins`` log-spaced bands: (centres Hz, (R, bins))."""
-    lf, ls = _log_bins(f, np.atleast_2d(s), fmin, fmax, n_bins)
+    lf, ls = log_bins(f, np.atleast_2d(s), fmin, fmax, n_bins)
     return 10**lf, ls
 
 
@@ -223,7 +239,7 @@ def per_realisation_normalised(v: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class DensityRatio:
+class DensityRatio(_Record):
     """p_coupled / p_single on [-h, h] (paper Fig. 7: about 2 near the origin).
 
     ``h`` = ``half_width`` x ``scale`` (in the units of the velocities, or
@@ -242,9 +258,6 @@ class DensityRatio:
     fraction_single: float
     n_bootstrap: int
     seed: int
-
-    def as_dict(self) -> dict:
-        return asdict(self)
 
 
 def density_ratio_near_zero(

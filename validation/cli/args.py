@@ -151,13 +151,19 @@ def add_run_args(p: argparse.ArgumentParser, duration: float, realizations: int)
                help="simulated time per realisation (s)")  # fmt: skip
     add_option(p, "--realizations", domain="realizations", default=realizations,
                help="independent noise realisations (count)")  # fmt: skip
-    add_option(p, "--seed", domain="seed", default=0,
-               help="root seed: fixes every random draw (integer >= 0)")  # fmt: skip
+    add_seed_arg(p, 0, "root seed: fixes every random draw (integer >= 0)")
     add_threads_arg(p)
     add_force_arg(p)
 
 
-def add_threads_arg(p: argparse.ArgumentParser) -> None:
+def add_threads_arg(p: argparse.ArgumentParser, *, suite: bool = False) -> None:
+    """--threads: the worker threads of one command; ``suite``: ``--workers`` (alias
+    ``--threads``), the threads / processes of a validation run."""
+    if suite:
+        add_option(p, "--workers", "--threads", domain="workers", dest="workers", default=None,
+                   help="threads / processes (count >= 1; default: all cores; --threads as in "
+                   "`engines` and `simulate`); results do not depend on it")  # fmt: skip
+        return
     add_option(p, "--threads", domain="workers", default=None,
                help="worker threads (count >= 1, at most 4 per core; default: all cores); "
                "results do not depend on it")  # fmt: skip
@@ -169,15 +175,76 @@ def add_force_arg(p: argparse.ArgumentParser) -> None:
                    "realisation-steps")  # fmt: skip
 
 
-def add_engine_arg(p: argparse.ArgumentParser, default: str | None = REFERENCE) -> None:
-    """--engine NAME from :func:`cipcore.registry.engine_names` (any case)."""
-    add_option(p, "--engine", domain="engine", default=default,
-               help="engine from the registry (an engine not installed here is refused "
-               "with the reason)")  # fmt: skip
+def add_engine_arg(
+    p: argparse.ArgumentParser,
+    default: str | None = REFERENCE,
+    help: str = "engine from the registry (an engine not installed here is refused with the "
+    "reason)",
+    metavar: str | None = None,
+) -> None:
+    """--engine NAME from :func:`cipcore.registry.engine_names` (any case); ``metavar`` None:
+    the names themselves."""
+    shown = {} if metavar is None else {"metavar": metavar}
+    add_option(p, "--engine", domain="engine", default=default, help=help, **shown)
 
 
-def add_json_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+def add_integrator_arg(p: argparse.ArgumentParser, help: str) -> None:
+    """--integrator NAME: one of MuJoCo's integrators (any case), None when not given."""
+    add_option(p, "--integrator", domain="integrator", default=None, metavar="NAME", help=help)
+
+
+def add_stepper_arg(p: argparse.ArgumentParser) -> None:
+    """--stepper of the reduced reference (:func:`engine_options` refuses it elsewhere)."""
+    add_option(p, "--stepper", domain="stepper", default=None,
+               help="reduced engine's stepper: semi-implicit (like MuJoCo Euler) or "
+               "explicit Euler-Maruyama (default: semi-implicit)")  # fmt: skip
+
+
+def engine_options(a: argparse.Namespace, engine: Any) -> dict:
+    """Engine keyword options from the command line (``--stepper``: the reference only)."""
+    kw = {}
+    if getattr(a, "stepper", None) is not None:
+        if engine.capabilities.rigid_body:
+            raise ParameterError(
+                f"--stepper applies to the reduced reference only; {engine.name!r} is a "
+                "rigid-body engine (its integrator is a physical setting)"
+            )
+        kw["stepper"] = a.stepper
+    return kw
+
+
+def add_simulation_args(p: argparse.ArgumentParser, duration: float, realizations: int) -> None:
+    """The options of a command that runs one engine: :func:`add_model_args`,
+    :func:`add_run_args`, --engine (the reference by default) and --stepper."""
+    add_model_args(p)
+    add_run_args(p, duration, realizations)
+    add_engine_arg(p)
+    add_stepper_arg(p)
+
+
+def add_seed_arg(p: argparse.ArgumentParser, default: int | None, help: str) -> None:
+    """--seed: the root seed of the command's noise draws (integer >= 0)."""
+    add_option(p, "--seed", domain="seed", default=default, help=help)
+
+
+def add_profile_arg(p: argparse.ArgumentParser, help: str) -> None:
+    """--profile: the sizes of a validation run (:data:`validation.profiles.PROFILES`)."""
+    add_option(p, "--profile", domain="profile", default="quick", help=help)
+
+
+def add_mjcf_arg(p: argparse.ArgumentParser, help: str) -> None:
+    """--mjcf PATH, repeatable: a user's CIP model file instead of a shipped one."""
+    add_option(p, "--mjcf", domain="mjcf in", action="append", metavar="PATH", help=help)
+
+
+def add_no_figures_arg(p: argparse.ArgumentParser, help: str) -> None:
+    """--no-figures: the command's tables and reports without its figures."""
+    p.add_argument("--no-figures", action="store_true", help=help)
+
+
+def add_json_arg(p: argparse.ArgumentParser, help: str = "print one JSON object on stdout") -> None:
+    """--json: the command's result as one JSON object on stdout."""
+    p.add_argument("--json", action="store_true", help=help)
 
 
 def params_from_args(

@@ -12,8 +12,9 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
-__all__ = ["add_ci_options", "progress_enabled", "run_environment"]
+__all__ = ["add_ci_options", "junit_file", "progress_enabled", "run_environment"]
 
 
 def progress_enabled(quiet: bool = False) -> bool:
@@ -46,6 +47,15 @@ def add_ci_options(p: argparse.ArgumentParser, verbose: bool = True) -> None:
             help="list every moved regression number, derived ones (intervals, "
             "standard errors, margins) included",
         )
+
+
+def junit_file(a: argparse.Namespace) -> Path | None:
+    """The ``--junit`` file, checked before any work (a writable .xml path), or None."""
+    if not a.junit:
+        return None
+    from validation.cli.args import check_out_file
+
+    return check_out_file("--junit", a.junit, (".xml",))
 
 
 def run_environment(model_files: dict[str, str] | None = None) -> dict:

@@ -13,6 +13,7 @@ import argparse
 
 from cipcore.params import ParameterError
 from cipcore.registry import check_engine_name, engine_names
+from validation.cli.args import add_engine_arg, add_integrator_arg
 from validation.cli.domains import DOMAINS, INTEGRATORS, DomainError, add_option
 
 __all__ = ["COMMAND_ENGINE", "INTEGRATORS", "add_engine_cmd_arg", "add_engine_options",
@@ -55,23 +56,17 @@ def register_engine_cmd(command: str | None, timeout: float | None = None) -> st
 
 def add_engine_options(p: argparse.ArgumentParser) -> None:
     """Add ``--engine``, ``--engine-cmd`` and ``--integrator`` to a command's parser."""
-    add_option(
+    add_engine_arg(
         p,
-        "--engine",
-        domain="engine",
         default=None,
-        metavar="NAME",
         help=f"the rigid-body engine to validate ({', '.join(engine_names())}; default mujoco)",
+        metavar="NAME",
     )
     add_engine_cmd_arg(p)
-    add_option(
+    add_integrator_arg(
         p,
-        "--integrator",
-        domain="integrator",
-        default=None,
-        metavar="NAME",
-        help=f"step the model file with this MuJoCo integrator ({', '.join(INTEGRATORS)}; "
-        "default: the file's <option integrator>); engines with their own stepper refuse it",
+        f"step the model file with this MuJoCo integrator ({', '.join(INTEGRATORS)}; default: "
+        "the file's <option integrator>); engines with their own stepper refuse it",
     )
 
 

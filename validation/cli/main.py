@@ -24,11 +24,12 @@ Registering a command is one line in :data:`COMMANDS`::
     "name": ("validation.module", "one-line help"),
 
 (``"validation.module:function"`` when the function is not called ``register``).
-``register(sub)`` is the module's usual ``sub.add_parser("name", help=...)``
-registration (it may register several commands; only the one asked for is kept);
-the help text in the table must equal the one given to ``add_parser`` (a test
-checks it), because the top-level help shows the table's text without importing
-the module.
+``register(sub)`` adds the command's function, described by the decorator
+:func:`command`, with :func:`add_command` (or a command of subcommands with
+:func:`add_group`), which gives ``sub.add_parser`` the table's help text (it may
+register several commands; only the one asked for is kept): the top-level help
+shows the table's text without importing the module, and the command's own parser
+shows the same.
 """
 
 from __future__ import annotations
@@ -36,14 +37,15 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from cipcore.atomic import WriteError
 from validation.cli.args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
 from validation.cli.exitcodes import EXIT_CRASH
 
-__all__ = ["COMMANDS", "EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "build_parser", "main"]
+__all__ = ["COMMANDS", "EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "add_command", "add_group",
+           "build_parser", "command", "main"]  # fmt: skip
 
 #: Every command, in the order of the top-level help: name -> ("module[:function]", help);
 #: the function ``register`` unless named.
@@ -105,6 +107,42 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "inject each catalogued fault; show which check flags it",
     ),
 }
+
+
+Command = Callable[[argparse.Namespace], int]
+
+
+def command(description: str) -> Callable[[Command], Command]:
+    """Decorator of a command's function: the description its ``--help`` shows (argparse
+    rewraps it), read by :func:`add_command`."""
+
+    def describe(func: Command) -> Command:
+        func.description = description  # type: ignore[attr-defined]
+        return func
+
+    return describe
+
+
+def add_command(
+    sub: Any, name: str, func: Command, help: str | None = None
+) -> argparse.ArgumentParser:
+    """Add command ``name`` to the subparsers ``sub``: its parser, run by ``func`` (described
+    by :func:`command`).  ``help``: the one-line help of a subcommand; a command of
+    :data:`COMMANDS` has the table's."""
+    text = COMMANDS[name][1] if help is None else help
+    p = sub.add_parser(name, help=text, description=func.description)  # type: ignore[attr-defined]
+    p.set_defaults(func=func)
+    return p
+
+
+def add_group(sub: Any, name: str, description: str, dest: str, metavar: str) -> Any:
+    """Add ``name``, a command of :data:`COMMANDS` made of subcommands: its parser and the
+    required subcommand (parsed into ``dest``, shown as ``metavar``); returns the subparsers
+    to :func:`add_command` them to."""
+    p = sub.add_parser(name, help=COMMANDS[name][1], description=description)
+    group = p.add_subparsers(dest=dest, metavar=metavar)
+    group.required = True
+    return group
 
 
 def _version() -> str:

@@ -13,7 +13,9 @@ from pathlib import Path
 from cipcore import ParameterError
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import check_count, check_positive
+from validation.cli.args import add_no_figures_arg
 from validation.cli.domains import DOMAINS
+from validation.cli.main import add_command, add_group, command
 from validation.experiment.task import DURATION, ENGINES, TaskSettings
 
 #: an output directory's declared domain: not empty, not an existing file
@@ -30,28 +32,35 @@ def _port(text: str) -> int:
     return v
 
 
+def _add_engine_arg(p: argparse.ArgumentParser) -> None:
+    """--engine: the engine that moves the sticks (:data:`validation.experiment.task.ENGINES`)."""
+    p.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
+                   help="engine that moves the sticks")  # fmt: skip
+
+
+def _add_trial_duration_arg(p: argparse.ArgumentParser) -> None:
+    """--trial-duration: the length of one trial (s)."""
+    p.add_argument("--trial-duration", type=float, default=DURATION,
+                   help="length of a trial (s, > 0)")  # fmt: skip
+
+
 def register(subparsers) -> None:
     """Add ``experiment`` and its subcommands to the ``cip-validate`` parser."""
-    p = subparsers.add_parser("experiment", help="the paper's experiment: serve, analyze, bots",
-                              description="The paper's balancing experiment (section 4): "
-                              "serve the tracking task to subjects' browsers, run bot-vs-bot "
-                              "trials, and analyse the recordings.")  # fmt: skip
-    sub = p.add_subparsers(dest="experiment_command", metavar="SUBCOMMAND")
-    sub.required = True
+    sub = add_group(subparsers, "experiment",
+                    "The paper's balancing experiment (section 4): serve the tracking task to "
+                    "subjects' browsers, run bot-vs-bot trials, and analyse the recordings.",
+                    dest="experiment_command", metavar="SUBCOMMAND")  # fmt: skip
 
-    s = sub.add_parser("serve", help="web server of the tracking task (prints the URL)",
-                       description="Serve the tracking task on HTTP and WebSockets; prints "
-                       "the URL with its access token; each trial is recorded in "
-                       "--out.")  # fmt: skip
+    s = add_command(
+        sub, "serve", cmd_serve, help="web server of the tracking task (prints the URL)"
+    )
     s.add_argument("--host", default="127.0.0.1", help="address to listen on")
     s.add_argument("--port", default="8050",
                    help="TCP port, integer in [0, 65535]; 0 picks a free one")  # fmt: skip
-    s.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
-                   help="engine that moves the sticks")  # fmt: skip
+    _add_engine_arg(s)
     s.add_argument("--out", default="experiment-data", metavar="DIR", type=OUT_DIR,
                    help="directory of the recordings (created if absent)")  # fmt: skip
-    s.add_argument("--trial-duration", type=float, default=DURATION,
-                   help="length of a trial (s, > 0)")  # fmt: skip
+    _add_trial_duration_arg(s)
     s.add_argument("--countdown", type=int, default=3,
                    help="countdown before a trial (s, integer >= 0)")  # fmt: skip
     s.add_argument(
@@ -59,27 +68,19 @@ def register(subparsers) -> None:
         help="a host name under which pages may reach the server (repeatable; IP addresses "
         "and localhost are always allowed)",
     )  # fmt: skip
-    s.set_defaults(func=cmd_serve)
 
-    a = sub.add_parser("analyze", help="Tables 1 and 2, Figs. 12-16",
-                       description="Analyse a directory of recordings: the paper's STCC and "
-                       "RMS tables and its figures of the movement, STCC and RMS vs "
-                       "tau.")  # fmt: skip
+    a = add_command(sub, "analyze", cmd_analyze, help="Tables 1 and 2, Figs. 12-16")
     a.add_argument("dir", help="directory of recordings")
     a.add_argument("--out", default=argparse.SUPPRESS, metavar="DIR", type=OUT_DIR,
                    help="report directory (default: DIR/analysis)")  # fmt: skip
-    a.add_argument("--no-figures", action="store_true", help="write the tables only")
+    add_no_figures_arg(a, "write the tables only")
     a.add_argument(
         "--include-incomplete", action="store_true",
         help="include trials cut short from outside (abort, disconnect, server_stop, "
         "unfinalised) in the averages; without it they are shown but left out",
     )  # fmt: skip
-    a.set_defaults(func=cmd_analyze)
 
-    b = sub.add_parser("bots", help="bot-vs-bot trials at full speed, no browser",
-                       description="Trials of the task played by delayed random-gain bots "
-                       "(the reduced model's controller) at full speed, recorded like "
-                       "subjects' trials.")  # fmt: skip
+    b = add_command(sub, "bots", cmd_bots, help="bot-vs-bot trials at full speed, no browser")
     b.add_argument("--out", default="experiment-bots", type=OUT_DIR,
                    help="directory of the recordings")  # fmt: skip
     b.add_argument("--mode", choices=("single", "coupled", "both"), default="both",
@@ -87,18 +88,19 @@ def register(subparsers) -> None:
     b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
     b.add_argument("--trials", type=int, default=5,
                    help="trials per subject and mode (count >= 1)")  # fmt: skip
-    b.add_argument("--trial-duration", type=float, default=DURATION,
-                   help="length of a trial (s, > 0)")  # fmt: skip
+    _add_trial_duration_arg(b)
     b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
     b.add_argument("--tau", type=float, default=0.1, help="bot delay (s), >= dt = 1 ms, whole ms")
     b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
     b.add_argument("--seed", type=int, default=0,
                    help="root seed of every bot's draws (integer >= 0)")  # fmt: skip
-    b.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
-                   help="engine that moves the sticks")  # fmt: skip
-    b.set_defaults(func=cmd_bots)
+    _add_engine_arg(b)
 
 
+@command(
+    "Serve the tracking task on HTTP and WebSockets; prints the URL with its access token; each "
+    "trial is recorded in --out.",
+)
 def cmd_serve(a: argparse.Namespace) -> int:
     a.port = _port(a.port)
     check_positive("--trial-duration", a.trial_duration)
@@ -154,6 +156,10 @@ def _labels(text: str) -> list[str]:
     return labels
 
 
+@command(
+    "Trials of the task played by delayed random-gain bots (the reduced model's controller) at "
+    "full speed, recorded like subjects' trials.",
+)
 def cmd_bots(a: argparse.Namespace) -> int:
     import numpy as np
 
@@ -181,6 +187,10 @@ def cmd_bots(a: argparse.Namespace) -> int:
     return 0
 
 
+@command(
+    "Analyse a directory of recordings: the paper's STCC and RMS tables and its figures of the "
+    "movement, STCC and RMS vs tau.",
+)
 def cmd_analyze(a: argparse.Namespace) -> int:
     from validation.experiment.recording import find_trials
     from validation.experiment.report import write_report

@@ -27,6 +27,8 @@ import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -185,6 +187,11 @@ def _other_integrator(m: mujoco.MjModel) -> None:
     m.opt.integrator = other if m.opt.integrator == euler else euler
 
 
+def _scale_nu(f: float) -> Callable[[BalanceParams], BalanceParams]:
+    """The controller's noise strength nu times ``f``."""
+    return lambda p: replace(p, nu=p.nu * f)
+
+
 # ------------------------------------------------------------ control edits
 def _gain_on_controller_1(f: float) -> CtrlEdit:
     def edit(m, ctrl, memory):
@@ -215,177 +222,85 @@ def make_fault(kind: str, size: float) -> Fault:
     """A fault of type ``kind`` (a key of :data:`FAULT_TYPES`) and magnitude ``size``."""
     if kind not in FAULT_TYPES:
         raise ParameterError(f"fault must be one of {', '.join(FAULT_TYPES)}, got {kind!r}")
-    return FAULT_TYPES[kind]["build"](size)
+    spec = FAULT_TYPES[kind]
+    edits = spec["edits"](size)
+    return Fault(kind=kind, size=size, unit=spec["unit"], description=spec["description"], **edits)
 
 
-def _f(kind, size, unit, text, **kw) -> Fault:
-    return Fault(kind=kind, size=size, unit=unit, description=text, **kw)
+def _fault_type(unit: str, description: str, edits: Callable[[float], dict], **flags: Any) -> dict:
+    """One entry of :data:`FAULT_TYPES`: ``edits(s)`` the :class:`Fault` fields of size s."""
+    return {"unit": unit, "description": description, "edits": edits, **flags}
 
 
+def _relative(description: str, scaled: Callable[[float], Any], field: str = "edit_model") -> dict:
+    """A fault type scaling one quantity by (1 + s): ``scaled(factor)`` is the edit (the
+    :class:`Fault` field ``field``) that scales it by the factor."""
+    return _fault_type("relative", description, lambda s: {field: scaled(1 + s)})
+
+
+def _flag(description: str, **edits: Any) -> dict:
+    """A fault type of one size only: ``edits``, the :class:`Fault` fields it sets."""
+    return _fault_type("flag", description, lambda s: edits, fixed=True)
+
+
+#: Every fault type: the unit of its size s, what it changes, ``edits(s)`` (the
+#: :class:`Fault` fields that carry it: its edits, the models it applies to, what the
+#: engine must declare), and for the power curve's bisection ``integer`` (whole sizes
+#: only), ``fixed`` (no other size) or ``identity`` (the size meaning no fault, default 0).
 FAULT_TYPES: dict[str, dict] = {
-    "delay_late": {
-        "build": lambda s: _f(
-            "delay_late",
-            s,
-            "steps",
-            "control reaches the cart s steps late (actuator latency)",
-            edit_ctrl=_latency(int(s)),
-        ),
-        "integer": True,
-    },
-    "delay_short": {
-        "build": lambda s: _f(
-            "delay_short",
-            s,
-            "steps",
-            "controller delay s steps shorter than tau/dt",
-            edit_params=lambda p: replace(p, tau=p.tau - s * p.dt),
-        ),
-        "integer": True,
-    },
-    "noise_scale": {
-        "build": lambda s: _f(
-            "noise_scale",
-            s,
-            "relative",
-            "noise strength nu (1 + s)",
-            edit_params=lambda p: replace(p, nu=p.nu * (1 + s)),
-        ),
-    },
-    "noise_without_sqrt_dt": {
-        "build": lambda s: _f(
-            "noise_without_sqrt_dt",
-            s,
-            "flag",
-            "noise scaled by nu instead of nu/sqrt(dt)",
-            edit_params=lambda p: replace(p, nu=p.nu * math.sqrt(p.dt)),
-        ),
-        "fixed": True,
-    },
-    "cart_damping": {
-        "build": lambda s: _f(
-            "cart_damping",
-            s,
-            "relative",
-            "cart damping gamma (1 + s)",
-            edit_model=_scale_bias(cart_damper, 1 + s),
-        ),
-    },
-    "tip_damping": {
-        "build": lambda s: _f(
-            "tip_damping",
-            s,
-            "relative",
-            "tip damping gamma (1 + s)",
-            edit_model=_scale_bias(tip_damper, 1 + s),
-        ),
-    },
-    "pendulum_length": {
-        "build": lambda s: _f(
-            "pendulum_length",
-            s,
-            "relative",
-            "pendulum length L (1 + s)",
-            edit_model=_scale_length(1 + s),
-        ),
-    },
-    "mass_ratio": {
-        "build": lambda s: _f(
-            "mass_ratio",
-            s,
-            "relative",
-            "tip mass m (1 + s), m/M with it",
-            edit_model=_scale_tip_mass(1 + s),
-        ),
-    },
-    "bob_inertia": {
-        "build": lambda s: _f(
-            "bob_inertia",
-            s,
-            "kappa",
-            "bob rotational inertia added, kappa = I/(m L^2) = s",
-            edit_model=_add_bob_inertia(s),
-        ),
-    },
-    "gravity": {
-        "build": lambda s: _f(
-            "gravity", s, "relative", "gravity g (1 + s)", edit_model=_scale_gravity(1 + s)
-        ),
-    },
-    "timestep": {
-        "build": lambda s: _f(
-            "timestep",
-            s,
-            "relative",
-            "engine time step dt (1 + s), the controller still assumes dt",
-            edit_model=_scale_timestep(1 + s),
-        ),
-    },
-    "rod_softness": {
-        "build": lambda s: _f(
-            "rod_softness",
-            s,
-            "factor",
-            "rod solref time constant x s",
-            edit_model=_scale_rod_timeconst(s),
-            models=("coupled",),
-            needs="soft rod",
-        ),
-        "identity": 1.0,
-    },
-    "rod_removed": {
-        "build": lambda s: _f(
-            "rod_removed",
-            s,
-            "flag",
-            "rod constraint disabled",
-            edit_model=_remove_rod,
-            models=("coupled",),
-        ),
-        "fixed": True,
-    },
-    "gain_one_controller": {
-        "build": lambda s: _f(
-            "gain_one_controller",
-            s,
-            "relative",
-            "controller 1's gain beta (1 + s)",
-            edit_ctrl=_gain_on_controller_1(1 + s),
-        ),
-    },
-    "gain_sign": {
-        "build": lambda s: _f(
-            "gain_sign",
-            s,
-            "flag",
-            "controller 1's force sign flipped",
-            edit_ctrl=_gain_on_controller_1(-1.0),
-        ),
-        "fixed": True,
-    },
-    "shared_noise": {
-        "build": lambda s: _f(
-            "shared_noise",
-            s,
-            "flag",
-            "both controllers draw the same noise",
-            shared_noise=True,
-            models=("coupled",),
-        ),
-        "fixed": True,
-    },
-    "integrator": {
-        "build": lambda s: _f(
-            "integrator",
-            s,
-            "flag",
-            "engine steps with another integrator than the file's (implicitfast for Euler, "
-            "else Euler)",
-            edit_model=_other_integrator,
-            needs="file integrator",
-        ),
-        "fixed": True,
-    },
+    "delay_late": _fault_type(
+        "steps",
+        "control reaches the cart s steps late (actuator latency)",
+        lambda s: {"edit_ctrl": _latency(int(s))},
+        integer=True,
+    ),
+    "delay_short": _fault_type(
+        "steps",
+        "controller delay s steps shorter than tau/dt",
+        lambda s: {"edit_params": lambda p: replace(p, tau=p.tau - s * p.dt)},
+        integer=True,
+    ),
+    "noise_scale": _relative("noise strength nu (1 + s)", _scale_nu, "edit_params"),
+    "noise_without_sqrt_dt": _flag(
+        "noise scaled by nu instead of nu/sqrt(dt)",
+        edit_params=lambda p: replace(p, nu=p.nu * math.sqrt(p.dt)),
+    ),
+    "cart_damping": _relative("cart damping gamma (1 + s)", partial(_scale_bias, cart_damper)),
+    "tip_damping": _relative("tip damping gamma (1 + s)", partial(_scale_bias, tip_damper)),
+    "pendulum_length": _relative("pendulum length L (1 + s)", _scale_length),
+    "mass_ratio": _relative("tip mass m (1 + s), m/M with it", _scale_tip_mass),
+    "bob_inertia": _fault_type(
+        "kappa",
+        "bob rotational inertia added, kappa = I/(m L^2) = s",
+        lambda s: {"edit_model": _add_bob_inertia(s)},
+    ),
+    "gravity": _relative("gravity g (1 + s)", _scale_gravity),
+    "timestep": _relative(
+        "engine time step dt (1 + s), the controller still assumes dt", _scale_timestep
+    ),
+    "rod_softness": _fault_type(
+        "factor",
+        "rod solref time constant x s",
+        lambda s: {
+            "edit_model": _scale_rod_timeconst(s),
+            "models": ("coupled",),
+            "needs": "soft rod",
+        },
+        identity=1.0,
+    ),
+    "rod_removed": _flag("rod constraint disabled", edit_model=_remove_rod, models=("coupled",)),
+    "gain_one_controller": _relative(
+        "controller 1's gain beta (1 + s)", _gain_on_controller_1, "edit_ctrl"
+    ),
+    "gain_sign": _flag("controller 1's force sign flipped", edit_ctrl=_gain_on_controller_1(-1.0)),
+    "shared_noise": _flag(
+        "both controllers draw the same noise", shared_noise=True, models=("coupled",)
+    ),
+    "integrator": _flag(
+        "engine steps with another integrator than the file's (implicitfast for Euler, else Euler)",
+        edit_model=_other_integrator,
+        needs="file integrator",
+    ),
 }
 
 #: The sizes the selftest must flag.

@@ -67,9 +67,14 @@ def _fmt(values: list[float]) -> str:
     return " ".join(repr(float(v)) for v in values)
 
 
-def _pendulum_inertials(root: ET.Element) -> list[ET.Element]:
+def _pendulums(root: ET.Element) -> list[tuple[ET.Element, ET.Element]]:
+    """(body, its ``inertial``) of every pendulum body of the file, listed before any edit."""
     pendulums = every_balancer(pendulum_body)
-    return [b.find("inertial") for b in root.iter("body") if b.get("name", "") in pendulums]
+    return [(b, b.find("inertial")) for b in root.iter("body") if b.get("name", "") in pendulums]
+
+
+def _pendulum_inertials(root: ET.Element) -> list[ET.Element]:
+    return [i for _, i in _pendulums(root)]
 
 
 def _rod_attr(attr: str, index: int, factor: float | None = None, value: float | None = None):
@@ -216,10 +221,7 @@ def _explicit_inertia(root: ET.Element) -> None:
 def _bob_in_welded_child(root: ET.Element) -> None:
     """The pendulum body keeps the hinge; the bob's mass moves to a child body at the tip."""
     _explicit_inertia(root)
-    for b in list(root.iter("body")):
-        if b.get("name", "") not in every_balancer(pendulum_body):
-            continue
-        i = b.find("inertial")
+    for b, i in _pendulums(root):
         b.remove(i)
         child = ET.SubElement(b, "body", name="bob_body_" + b.get("name")[-1], pos=i.get("pos"))
         ET.SubElement(child, "inertial", pos="0 0 0", mass=i.get("mass"),
@@ -229,10 +231,7 @@ def _bob_in_welded_child(root: ET.Element) -> None:
 def _split_frames(root: ET.Element) -> None:
     """The pendulum split in two welded frames at half its length, the bob in the upper."""
     _explicit_inertia(root)
-    for b in list(root.iter("body")):
-        if b.get("name", "") not in every_balancer(pendulum_body):
-            continue
-        i = b.find("inertial")
+    for b, i in _pendulums(root):
         L = _floats(i.get("pos"))[2]
         b.remove(i)
         site = b.find("site")

@@ -23,9 +23,10 @@ from cipcore.params import ParameterError
 from cipcore.scenario import EngineTarget
 from validation.checks.agreement import instrument_checks, rigid_engine
 from validation.checks.stats import FAIL
-from validation.cli.args import nonnegative_int, positive_int
-from validation.cli.ci_options import add_ci_options, run_environment
+from validation.cli.args import add_json_arg, nonnegative_int, positive_int
+from validation.cli.ci_options import add_ci_options, junit_file, run_environment
 from validation.cli.engine_options import add_engine_options, check_engine_options
+from validation.cli.main import add_command, command
 from validation.faults.catalogue import CATALOGUE, FAULT_TYPES, Fault, make_fault
 
 
@@ -148,16 +149,19 @@ def format_table(clean: list[str], rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+@command(
+    "Run the suite's regression checks on the unmodified model and on the model with each "
+    "catalogued fault injected (a wrong constant, delay, gain, noise scaling or integrator); the "
+    "selftest passes when the unmodified model passes every check and every fault is flagged by "
+    "at least one."
+)
 def cmd_selftest(a: argparse.Namespace) -> int:
     import json
 
     from cipcore.params import ParameterError, check_count
 
     check_count("realizations", a.realizations)
-    if a.junit:
-        from validation.cli.args import check_out_file
-
-        a.junit = check_out_file("--junit", a.junit, (".xml",))
+    a.junit = junit_file(a)
     check_engine_options(a)
     kinds = [k.strip() for k in a.faults.split(",")] if a.faults else None
     from validation.faults.selftest_paths import PATH_FAULT_TYPES, path_power
@@ -216,14 +220,7 @@ def cmd_selftest(a: argparse.Namespace) -> int:
 
 def register_selftest(sub: argparse._SubParsersAction) -> None:
     """Add ``cip-validate selftest`` to the CLI's subcommands."""
-    p = sub.add_parser(
-        "selftest",
-        help="inject each catalogued fault; show which check flags it",
-        description="Run the suite's regression checks on the unmodified model and on the "
-        "model with each catalogued fault injected (a wrong constant, delay, gain, noise "
-        "scaling or integrator); the selftest passes when the unmodified model passes every "
-        "check and every fault is flagged by at least one.",
-    )
+    p = add_command(sub, "selftest", cmd_selftest)
     p.add_argument("--seed", type=nonnegative_int, default=1,
                    help="root seed of every noise draw (integer >= 0)")  # fmt: skip
     p.add_argument("--realizations", type=positive_int, default=2,
@@ -232,7 +229,6 @@ def register_selftest(sub: argparse._SubParsersAction) -> None:
                    help="only these fault types (default: all: "
                    + ", ".join(FAULT_TYPES) + ")")  # fmt: skip
     p.add_argument("--power", action="store_true", help="bisect each type's smallest flagged size")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_json_arg(p)
     add_engine_options(p)
     add_ci_options(p, verbose=False)
-    p.set_defaults(func=cmd_selftest)

@@ -367,6 +367,19 @@ def _verdict(outcomes: list[str], in_ci: list[bool] | None = None) -> str:
     return "inconclusive"
 
 
+def _series_sets(profile: Profile, threads: int | None) -> tuple[dict[str, dict], float]:
+    """Both models' :func:`series_set` (in :data:`MODEL_NAMES` order) and their sample
+    interval (s)."""
+    sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}
+    return sets, float(sets["single"]["dt"])
+
+
+def _duration_prefixes(profile: Profile, grid: dict, dt: float) -> list[tuple[float, int]]:
+    """Each duration choice of ``grid`` (a fraction of ``peak_duration``) with the samples
+    of the prefix of every series it keeps, at the sample interval ``dt`` (s)."""
+    return [(frac, round(frac * profile.peak_duration / dt)) for frac in grid["duration"]]
+
+
 def peak_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
     """tau_hat density claims (Fig. sccpeak:pdf) for every estimator choice in ``grid``.
 
@@ -375,8 +388,7 @@ def peak_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
     dominance, significance rule, bin width and duration prefix.
     """
     rows = []
-    sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}
-    dt = float(sets["single"]["dt"])
+    sets, dt = _series_sets(profile, threads)
     lmax = max(grid["max_lag"])
     seed = profile.seed_for("robustness", "peaks")
     for window in grid["window"]:
@@ -432,7 +444,7 @@ def _stcc_of(profile: Profile, model: str, d: dict, window: float, max_lag: floa
 
 def velocity_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
     """Velocity density ratio near 0 (Fig. velo) for every estimator choice in ``grid``."""
-    sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}
+    sets, _ = _series_sets(profile, threads)
     rows = []
     n = sets["single"]["ev"].shape[1]
     for frac in grid["duration"]:
@@ -450,11 +462,9 @@ def velocity_grid(profile: Profile, threads: int | None, grid: dict) -> list[dic
 
 def spectrum_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
     """Two power-law regimes of the error spectra, single vs coupled (Fig. pwsp)."""
-    sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}
-    dt = float(sets["single"]["dt"])
+    sets, dt = _series_sets(profile, threads)
     rows = []
-    for frac in grid["duration"]:
-        k = round(frac * profile.peak_duration / dt)
+    for frac, k in _duration_prefixes(profile, grid, dt):
         for seg in grid["segment"]:
             if seg > frac * profile.peak_duration / 2:
                 continue
@@ -488,11 +498,9 @@ def _spectrum_of(profile: Profile, model: str, d: dict, k: int, segment: float) 
 
 def laminar_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
     """Laminar-phase density exponent (on-off intermittency predicts -3/2)."""
-    sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}
-    dt = float(sets["single"]["dt"])
+    sets, dt = _series_sets(profile, threads)
     rows = []
-    for frac in grid["duration"]:
-        k = round(frac * profile.peak_duration / dt)
+    for frac, k in _duration_prefixes(profile, grid, dt):
         for ref in grid["threshold_reference"]:
             for thr in grid["threshold"]:
                 out = {}
@@ -633,8 +641,7 @@ def peaks_and_spectra(profile: Profile, threads: int | None) -> tuple[list[dict]
     """
     g = _default_grid(profile)
     rows, data = [], {}
-    sets = {m: series_set(profile, m, threads) for m in MODEL_NAMES}
-    dt = float(sets["single"]["dt"])
+    sets, dt = _series_sets(profile, threads)
     edges = np.arange(0.0, profile.stcc_max_lag + 0.005, 0.01)  # as peak_grid's 0.01 s bins
     for model, d in sets.items():
         vbs = [d["vb"][:1]] + ([d["vb2"][None]] if "vb2" in d else [])

@@ -39,6 +39,21 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _finish(
+    fig, ax, path: Path, labels: tuple[str, str], title: str, title_size: float = 10
+) -> Path:
+    """Label the axes ``ax`` (x, y), title them, draw their legend and save ``fig``."""
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_title(title, fontsize=title_size)
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+#: the line marking the paper's delay tau = 0.1 s on the STCC figures
+DELAY_LINE = {"color": "k", "lw": 0.6, "ls": ":", "label": r"delay $\tau$ = 0.1 s"}
+
+
 def fig_lle(curve, points, bstar, path: Path) -> Path:
     """Fig. 3: lambda1 vs beta, reduced curve with 95 % band, MuJoCo points, beta*."""
     fig, ax = plt.subplots(figsize=(6.4, 4.2), constrained_layout=True)
@@ -182,11 +197,9 @@ def fig_velo(rms, path: Path) -> Path:
     ax.plot(centres, ratio, "o-", ms=3, label=r"$p(\dot{\Delta q}_1) / p(\dot{\Delta x})$, reduced")
     ax.axhline(1.0, color="k", lw=0.6, label="ratio 1: coupling changes nothing")
     ax.plot([0.0], [2.0], "k*", ms=9, ls="", label="paper: about 2 near 0 (text)")
-    ax.set_xlabel("velocity error (m/s)")
-    ax.set_ylabel(r"$p(\dot{\Delta q}_1) / p(\dot{\Delta x})$")
-    ax.set_title("Velocity-error densities, coupled over single (reduced model)", fontsize=10)
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+    labels = ("velocity error (m/s)", r"$p(\dot{\Delta q}_1) / p(\dot{\Delta x})$")
+    title = "Velocity-error densities, coupled over single (reduced model)"
+    return _finish(fig, ax, path, labels, title)
 
 
 def fig_scc(peaks, series, path: Path) -> Path:
@@ -195,12 +208,9 @@ def fig_scc(peaks, series, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     ax.plot(d["lags"], d["R"], label=r"$R(\dot q_T, \dot q_{M1})$")
     ax.plot(d["lags"], d["R2"], label=r"$R(\dot q_T, \dot q_{M2})$")
-    ax.axvline(0.1, color="k", lw=0.6, ls=":", label=r"delay $\tau$ = 0.1 s")
-    ax.set_xlabel(r"lag $\tau$ (s)")
-    ax.set_ylabel("R")
-    ax.set_title(f"STCC, coupled reduced model, t = {d['t']:.1f} s, Dt = 5 s", fontsize=9)
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+    ax.axvline(0.1, **DELAY_LINE)
+    title = f"STCC, coupled reduced model, t = {d['t']:.1f} s, Dt = 5 s"
+    return _finish(fig, ax, path, (r"lag $\tau$ (s)", "R"), title, title_size=9)
 
 
 def fig_sccpeak(peaks, path: Path) -> Path:
@@ -214,7 +224,7 @@ def fig_sccpeak(peaks, path: Path) -> Path:
         d = peaks[f"peaks_{model}"]
         th = d["tau_hat"][0, :, i]
         ax.plot(d["t"], th, ".", ms=2, label="first dominant peak " + lab)
-        ax.axhline(0.1, color="k", lw=0.6, ls=":", label=r"delay $\tau$ = 0.1 s")
+        ax.axhline(0.1, **DELAY_LINE)
         n = int(np.isfinite(th).sum())
         ax.set_title(f"{title}: {n} of {th.size} windows with a peak", fontsize=9)
         ax.set_ylabel(lab + " (s)")
@@ -239,12 +249,9 @@ def fig_sccpeak_pdf(peaks, series, path: Path) -> Path:
             h, _ = np.histogram(th, bins=e, density=True)
             ax.plot(0.5 * (e[1:] + e[:-1]), h, mk + "--", color=c, ms=3, mfc="none",
                     label=f"MuJoCo, {model} (small amplitude)")  # fmt: skip
-    ax.axvline(0.1, color="k", lw=0.6, ls=":", label=r"delay $\tau$ = 0.1 s")
-    ax.set_xlabel(r"$\hat\tau$ (s)")
-    ax.set_ylabel("density (1/s)")
-    ax.set_title(r"Densities of the first peak point $\hat\tau$", fontsize=10)
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+    ax.axvline(0.1, **DELAY_LINE)
+    title = r"Densities of the first peak point $\hat\tau$"
+    return _finish(fig, ax, path, (r"$\hat\tau$ (s)", "density (1/s)"), title)
 
 
 def fig_scan(scan, path: Path) -> Path:
@@ -259,11 +266,9 @@ def fig_scan(scan, path: Path) -> Path:
 
     ax.axvline(small_angle_limit(), color="grey", lw=0.6, ls=":", label="small-angle limit")
     ax.axvline(np.pi / 2, color="k", lw=0.6, ls="-.", label=r"$|\theta| = \pi/2$: fallen")
-    ax.set_xlabel(r"largest $|\theta|$ reached (rad)")
-    ax.set_ylabel("relative L2 distance of balancing errors")
-    ax.set_title("MuJoCo against the reduced model by initial amplitude (same noise)", fontsize=10)
-    ax.legend(fontsize=8)
-    return _save(fig, path)
+    labels = (r"largest $|\theta|$ reached (rad)", "relative L2 distance of balancing errors")
+    title = "MuJoCo against the reduced model by initial amplitude (same noise)"
+    return _finish(fig, ax, path, labels, title)
 
 
 def paper_figures(out_dir: Path, data: Mapping[str, Any], *, only=None) -> list[Path]:

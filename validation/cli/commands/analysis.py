@@ -3,53 +3,46 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from cipcore.params import ParameterError
+from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import get_engine
 from validation.checks.divergence import lyapunov_events, summary
 from validation.cli.args import (
     EXIT_OK,
-    add_engine_arg,
     add_force_arg,
     add_json_arg,
     add_model_args,
     add_run_args,
+    add_simulation_args,
     check_out_file,
     check_work,
     dump,
+    engine_options,
     params_from_args,
 )
 from validation.cli.ci_options import progress_enabled
 from validation.cli.domains import add_option
+from validation.cli.main import add_command, command
 
 PLOT_SUFFIXES = (".png", ".pdf", ".svg")
 
 
-def engine_options(a: argparse.Namespace, engine) -> dict:
-    """Engine keyword options from the command line (``--stepper``: the reference only)."""
-    kw = {}
-    if getattr(a, "stepper", None) is not None:
-        if engine.capabilities.rigid_body:
-            raise ParameterError(
-                f"--stepper applies to the reduced reference only; {engine.name!r} is a "
-                "rigid-body engine (its integrator is a physical setting)"
-            )
-        kw["stepper"] = a.stepper
-    return kw
-
-
-def add_stepper_arg(p: argparse.ArgumentParser) -> None:
-    add_option(
-        p,
-        "--stepper",
-        domain="stepper",
-        default=None,
-        help="reduced engine's stepper: semi-implicit (like MuJoCo Euler) or "
-        "explicit Euler-Maruyama (default: semi-implicit)",
-    )
+def run_engine(
+    a: argparse.Namespace, run: Callable[..., Any], params: BalanceParams, **options: Any
+) -> Any:
+    """``run`` (an engine's ``simulate`` or ``lyapunov``) on the options of
+    :func:`validation.cli.args.add_simulation_args`: the model, ``params``, --duration,
+    --realizations and --seed on --threads, a progress bar unless --json, and ``options``
+    (the method's own), once the work passed :func:`validation.cli.args.check_work`."""
+    check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
+    progress = not a.json and progress_enabled()
+    args = (a.model, params, a.duration, a.realizations, a.seed)
+    return run(*args, threads=a.threads, progress=progress, **options)
 
 
 # ---------------------------------------------------------------- lyapunov
@@ -65,22 +58,15 @@ def check_lyapunov_duration(a: argparse.Namespace, tau: float, dt: float) -> Non
         )
 
 
+@command(
+    "lambda1 (1/s) of any registered engine: Benettin's method over the delay history, mean over "
+    "realisations and Student-t 95 % CI."
+)
 def cmd_lyapunov(a: argparse.Namespace) -> int:
     params = params_from_args(a)
     check_lyapunov_duration(a, params.tau, params.dt)
     engine = get_engine(a.engine)
-    kw = engine_options(a, engine)
-    check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
-    res = engine.lyapunov(
-        a.model,
-        params,
-        a.duration,
-        a.realizations,
-        a.seed,
-        threads=a.threads,
-        progress=not a.json and progress_enabled(),
-        **kw,
-    )
+    res = run_engine(a, engine.lyapunov, params, **engine_options(a, engine))
     events = lyapunov_events(res.per_realization)
     d = res.as_dict()
     d["engine"] = a.engine
@@ -101,6 +87,9 @@ def cmd_lyapunov(a: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------- critical gain
+@command(
+    "beta* (1/s^2) where lambda1 of the reduced model crosses the target (paper Fig. 3: 5e-4 1/s)."
+)
 def cmd_critical_gain(a: argparse.Namespace) -> int:
     from cipcore.scenario import Execution, Scenario
     from reduced.lyapunov import critical_gain, numerical_setting
@@ -155,6 +144,10 @@ def check_region_work(n_betas: int, n_taus: int, force: bool) -> int:
     return points
 
 
+@command(
+    "Rightmost characteristic roots of the noise-free reduced model (nu = 0) and, with --plot, its "
+    "stability region in (beta, tau)."
+)
 def cmd_stability(a: argparse.Namespace) -> int:
     from reduced.stability import characteristic_roots, stability_region
 
@@ -194,30 +187,12 @@ def cmd_stability(a: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------ parser
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add the commands to the parser. The function is long because it declares every option of
-    its commands, one call each.
-    """
-
-    p = sub.add_parser(
-        "lyapunov",
-        help="largest Lyapunov exponent lambda1 (mean, 95 %% CI)",
-        description="lambda1 (1/s) of any registered engine: Benettin's method "
-        "over the delay history, mean over realisations and Student-t 95 % "
-        "CI.",
-    )
-    add_model_args(p)
-    add_run_args(p, duration=200.0, realizations=8)
-    add_engine_arg(p)
-    add_stepper_arg(p)
+    """Add ``lyapunov``, ``critical-gain`` and ``stability`` to the parser."""
+    p = add_command(sub, "lyapunov", cmd_lyapunov)
+    add_simulation_args(p, duration=200.0, realizations=8)
     add_json_arg(p)
-    p.set_defaults(func=cmd_lyapunov)
 
-    p = sub.add_parser(
-        "critical-gain",
-        help="beta* where lambda1 equals a target (paper: 5e-4)",
-        description="beta* (1/s^2) where lambda1 of the reduced model crosses "
-        "the target (paper Fig. 3: 5e-4 1/s).",
-    )
+    p = add_command(sub, "critical-gain", cmd_critical_gain)
     add_model_args(p, beta=False)
     add_run_args(p, duration=500.0, realizations=16)
     add_option(
@@ -230,21 +205,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_option(p, "--target", domain="target", default=5e-4, help="lambda1 target (1/s)")
     add_option(
-        p,
-        "--gains",
-        domain="gains",
-        default=7,
-        help="gains evaluated over the range (count >= 2)",
+        p, "--gains", domain="gains", default=7, help="gains evaluated over the range (count >= 2)"
     )
     add_json_arg(p)
-    p.set_defaults(func=cmd_critical_gain)
 
-    p = sub.add_parser(
-        "stability",
-        help="noise-free characteristic roots and stability region",
-        description="Rightmost characteristic roots of the noise-free reduced "
-        "model (nu = 0) and, with --plot, its stability region in (beta, tau).",
-    )
+    p = add_command(sub, "stability", cmd_stability)
     add_model_args(p)
     add_option(
         p,
@@ -260,22 +225,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="FILE.png",
         help="draw the stability region in (beta, tau) to this .png, .pdf or .svg",
     )
-    add_option(
-        p,
-        "--beta-grid",
-        domain="beta grid",
-        default="0:80:81",
-        metavar="LOW:HIGH:N",
-        help="gains of the region plot (1/s^2; N >= 2 points)",
-    )
-    add_option(
-        p,
-        "--tau-grid",
-        domain="tau grid",
-        default="0.01:0.3:59",
-        metavar="LOW:HIGH:N",
-        help="delays of the region plot (s; N >= 2 points)",
-    )
+    # the region plot's axes: option, domain, default, what and unit
+    for option, domain, default, what, unit in (
+        ("--beta-grid", "beta grid", "0:80:81", "gains", "1/s^2"),
+        ("--tau-grid", "tau grid", "0.01:0.3:59", "delays", "s"),
+    ):
+        add_option(
+            p,
+            option,
+            domain=domain,
+            default=default,
+            metavar="LOW:HIGH:N",
+            help=f"{what} of the region plot ({unit}; N >= 2 points)",
+        )
     add_force_arg(p)
     add_json_arg(p)
-    p.set_defaults(func=cmd_stability)

@@ -17,14 +17,26 @@ import numpy as np
 
 from cipcore.atomic import atomic_path
 from cipcore.params import ParameterError
-from validation.cli.ci_options import add_ci_options
+from validation.cli.args import (
+    add_engine_arg,
+    add_json_arg,
+    add_mjcf_arg,
+    add_seed_arg,
+    check_out_file,
+)
+from validation.cli.ci_options import add_ci_options, junit_file
 from validation.cli.domains import add_option
 from validation.cli.exitcodes import EXIT_FAIL, EXIT_OK
+from validation.cli.main import add_command, add_group, command
 
 
+@command(
+    "Write a case file: the model files, the scenarios (model, realisations, steps, dt, delay, "
+    "gain, noise scale, amplitude, fields to record) and every standard-normal draw, for an "
+    "engine that runs the controller itself.",
+)
 def cmd_export(a: argparse.Namespace) -> int:
     from cip.mjcf_params import model_files
-    from validation.cli.args import check_out_file
     from validation.exchange.case import export_case
 
     out = check_out_file("--out", a.out, (".npz",))
@@ -34,8 +46,11 @@ def cmd_export(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+@command(
+    "Simulate every scenario of a case file with a registered rigid-body engine under the case's "
+    "draws and write the trajectories an external engine should reproduce.",
+)
 def cmd_run(a: argparse.Namespace) -> int:
-    from validation.cli.args import check_out_file
     from validation.exchange.case import load_case, run_case
 
     out = check_out_file("--out", a.out, (".npz",))
@@ -56,12 +71,16 @@ def _load_trajectories(path: str) -> dict[str, np.ndarray]:
         raise ParameterError(f"--trajectories: cannot read {path!r} ({exc})") from None
 
 
+@command(
+    "Apply the run's direct checks (the exact linear twin under the case's draws, the rod's "
+    "stretch, the delay measured from the response) to the trajectories an engine wrote: exit 0 "
+    "when every check passes, 1 when one fails.",
+)
 def cmd_check(a: argparse.Namespace) -> int:
-    from validation.cli.args import check_out_file
     from validation.cli.checklog import check_table, with_limit
     from validation.exchange.case import check_case, load_case
 
-    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    junit = junit_file(a)
     case = load_case(a.case)
     t = time.perf_counter()
     traj = _load_trajectories(a.trajectories)
@@ -86,57 +105,39 @@ def cmd_check(a: argparse.Namespace) -> int:
     return EXIT_FAIL if failed else EXIT_OK
 
 
+def _add_case_arg(p: argparse.ArgumentParser) -> None:
+    """--case FILE.npz, a case file written by ``case export``."""
+    add_option(p, "--case", domain="npz in", required=True, metavar="FILE.npz",
+               help="case file written by `case export`")  # fmt: skip
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "case",
-        help="file protocol for engines that run the controller themselves",
-        description="Export a validation case (model, parameters, every noise draw), run it "
-        "in process, or check the trajectories an engine wrote (README: Engines that run the "
-        "controller themselves).",
-    )
-    cs = p.add_subparsers(dest="case_command", metavar="ACTION")
-    cs.required = True
-    e = cs.add_parser(
-        "export", help="write case.npz",
-        description="Write a case file: the model files, the scenarios (model, realisations, "
-        "steps, dt, delay, gain, noise scale, amplitude, fields to record) and every "
-        "standard-normal draw, for an engine that runs the controller itself.",
-    )  # fmt: skip
+    """Add ``case`` and its actions ``export``, ``run`` and ``check`` to the parser."""
+    cs = add_group(sub, "case",
+                   "Export a validation case (model, parameters, every noise draw), run it in "
+                   "process, or check the trajectories an engine wrote (README: Engines that run "
+                   "the controller themselves).",
+                   dest="case_command", metavar="ACTION")  # fmt: skip
+    e = add_command(cs, "export", cmd_export, help="write case.npz")
     add_option(e, "--out", domain="npz out", default="case.npz", metavar="FILE.npz",
                help="case file to write")  # fmt: skip
-    add_option(e, "--seed", domain="seed", default=1,
-               help="root seed of the noise draws (integer >= 0)")  # fmt: skip
+    add_seed_arg(e, 1, "root seed of the noise draws (integer >= 0)")
     add_option(e, "--realizations", domain="case realizations", default=4,
                help="realisations per scenario (count >= 2)")  # fmt: skip
-    add_option(e, "--mjcf", domain="mjcf in", action="append", metavar="PATH",
-                   help="a user's CIP model file instead of the shipped one")  # fmt: skip
-    e.set_defaults(func=cmd_export)
-    r = cs.add_parser(
-        "run", help="run a case with a registered engine (reference trajectories)",
-        description="Simulate every scenario of a case file with a registered rigid-body "
-        "engine under the case's draws and write the trajectories an external engine "
-        "should reproduce.",
-    )  # fmt: skip
-    add_option(r, "--case", domain="npz in", required=True, metavar="FILE.npz",
-               help="case file written by `case export`")  # fmt: skip
-    add_option(r, "--engine", domain="engine", default="mujoco",
-               help="a registered rigid-body engine")  # fmt: skip
+    add_mjcf_arg(e, "a user's CIP model file instead of the shipped one")
+    r = add_command(
+        cs, "run", cmd_run, help="run a case with a registered engine (reference trajectories)"
+    )
+    _add_case_arg(r)
+    add_engine_arg(r, default="mujoco", help="a registered rigid-body engine")
     add_option(r, "--out", domain="npz out", default="trajectories.npz", metavar="FILE.npz",
                    help="trajectories file to write")  # fmt: skip
-    r.set_defaults(func=cmd_run)
-    c = cs.add_parser(
-        "check", help="validate the trajectories an engine wrote",
-        description="Apply the run's direct checks (the exact linear twin under the case's "
-        "draws, the rod's stretch, the delay measured from the response) to the "
-        "trajectories an engine wrote: exit 0 when every check passes, 1 when one fails.",
-    )  # fmt: skip
-    add_option(c, "--case", domain="npz in", required=True, metavar="FILE.npz",
-               help="case file written by `case export`")  # fmt: skip
+    c = add_command(cs, "check", cmd_check, help="validate the trajectories an engine wrote")
+    _add_case_arg(c)
     add_option(c, "--trajectories", domain="npz in", required=True, metavar="FILE.npz",
                help="the engine's trajectories (<scenario>/<field> arrays)")  # fmt: skip
-    add_option(c, "--engine", domain="engine", default="mujoco",
+    add_engine_arg(c, default="mujoco",
                    help="the registered rigid-body engine whose discretisation the trajectories "
                    "follow: its measured twin and rod tolerances apply")  # fmt: skip
-    c.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    add_json_arg(c, help="one JSON object on stdout")
     add_ci_options(c, verbose=False)
-    c.set_defaults(func=cmd_check)

@@ -9,22 +9,24 @@ import sys
 import time
 
 from cipcore.params import EngineError, ParameterError
-from validation.cli.ci_options import add_ci_options
-from validation.cli.domains import add_option
+from validation.cli.args import add_engine_arg, add_json_arg
+from validation.cli.ci_options import add_ci_options, junit_file
 from validation.cli.engine_options import COMMAND_ENGINE, add_engine_cmd_arg, register_engine_cmd
 from validation.cli.exitcodes import EXIT_CRASH, EXIT_FAIL, EXIT_OK
+from validation.cli.main import add_command, command
 
-#: the registry name of the ``--engine-cmd`` engine
 
-
+@command(
+    "Run the engine contract on one engine, as an engine's own CI would: exit 0 when every check "
+    "passes, 1 when one fails, 4 when the engine crashes."
+)
 def cmd_contract(a: argparse.Namespace) -> int:
     from cipcore.registry import check_engine_name, get_engine
     from validation.checks.contract import run_contract
-    from validation.cli.args import check_out_file
 
     if (a.engine is None) == (a.engine_cmd is None):
         raise ParameterError('contract: give one of --engine NAME or --engine-cmd "CMD ARGS"')
-    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    junit = junit_file(a)
     t = time.perf_counter()
 
     def say(row: dict) -> None:
@@ -67,14 +69,9 @@ def cmd_contract(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "contract",
-        help="the engine contract (reduced trajectory, delay, rod, energy, batch split)",
-        description="Run the engine contract on one engine, as an engine's own CI would: exit "
-        "0 when every check passes, 1 when one fails, 4 when the engine crashes.",
-    )
-    add_option(p, "--engine", domain="engine", help="a registered engine")
+    """Add ``contract`` to the parser."""
+    p = add_command(sub, "contract", cmd_contract)
+    add_engine_arg(p, default=None, help="a registered engine")
     add_engine_cmd_arg(p)
-    p.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    add_json_arg(p, help="one JSON object on stdout")
     add_ci_options(p, verbose=False)
-    p.set_defaults(func=cmd_contract)

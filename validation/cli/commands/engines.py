@@ -9,14 +9,29 @@ import sys
 
 from cip.quiet import stdout_to_stderr
 from cipcore.registry import engine_names
-from validation.cli.args import add_threads_arg, check_out_dir, check_out_file
-from validation.cli.ci_options import add_ci_options, run_environment
+from validation.cli.args import (
+    add_integrator_arg,
+    add_json_arg,
+    add_no_figures_arg,
+    add_profile_arg,
+    add_seed_arg,
+    add_threads_arg,
+    check_out_dir,
+)
+from validation.cli.ci_options import add_ci_options, junit_file, run_environment
 from validation.cli.domains import add_option
 from validation.cli.engine_options import INTEGRATORS, add_engine_cmd_arg, register_engine_cmd
+from validation.cli.main import add_command, command
 
 EXIT_OK, EXIT_FAIL = 0, 1
 
 
+@command(
+    "Run every registered engine (or --engines) through the checks of `cip-validate run` (its "
+    "exact twin, the delay, the rod, the declared model, the agreement with the reduced reference "
+    "on the same seeds) and list them in one table with throughput (realisation-steps/s) in "
+    "DIR/report.md and report.html; an engine not installed here is skipped with the reason."
+)
 def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.params import ParameterError
     from validation.engines import compare_engines, parse_engines, write_engine_reports
@@ -32,7 +47,7 @@ def cmd_engines(a: argparse.Namespace) -> int:
     else:
         names = parse_engines(None if given is None else ",".join(given))
     out = check_out_dir("--out", a.out)  # checked before any work
-    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    junit = junit_file(a)
     quiet = a.json or a.quiet
     say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
     try:
@@ -82,33 +97,21 @@ def cmd_engines(a: argparse.Namespace) -> int:
 
 
 def add_engines_command(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "engines",
-        help="validate every registered engine through the run's checks, one table",
-        description="Run every registered engine (or --engines) through the checks of "
-        "`cip-validate run` (its exact twin, the delay, the rod, the declared model, the "
-        "agreement with the reduced reference on the same seeds) and list them in one table "
-        "with throughput (realisation-steps/s) in DIR/report.md and report.html; an engine "
-        "not installed here is skipped with the reason.",
-    )
+    """Add ``engines`` to the parser."""
+    p = add_command(sub, "engines", cmd_engines)
     registered = ", ".join(engine_names())
     add_option(p, "--engines", domain="engines", metavar="A,B,...",
                help=f"engines to validate or all (default: all: {registered})")  # fmt: skip
-    add_option(p, "--profile", domain="profile", default="quick",
-               help="sizes of the checks (the profiles of `cip-validate run`)")  # fmt: skip
-    add_option(p, "--seed", domain="seed", default=None,
-               help="root seed of every noise draw (integer >= 0; default: the "
-               "profile's)")  # fmt: skip
-    add_option(p, "--integrator", domain="integrator", default=None, metavar="NAME",
-                   help=f"MuJoCo integrator for engines that follow the model file "
-                   f"({', '.join(INTEGRATORS)}; default: the file's)")  # fmt: skip
+    add_profile_arg(p, "sizes of the checks (the profiles of `cip-validate run`)")
+    add_seed_arg(p, None, "root seed of every noise draw (integer >= 0; default: the profile's)")
+    add_integrator_arg(p, "MuJoCo integrator for engines that follow the model file "
+                       f"({', '.join(INTEGRATORS)}; default: the file's)")  # fmt: skip
     p.add_argument("--selftest", action="store_true",
                    help="also inject the fault catalogue into each rigid-body engine")  # fmt: skip
     add_threads_arg(p)
     add_option(p, "--out", domain="out dir", default="cip-engines-out", metavar="DIR",
                    help="output directory (created if absent; must be writable)")  # fmt: skip
-    p.add_argument("--no-figures", action="store_true", help="skip the speed-accuracy figure")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    add_no_figures_arg(p, "skip the speed-accuracy figure")
+    add_json_arg(p)
     add_ci_options(p, verbose=False)
     add_engine_cmd_arg(p)
-    p.set_defaults(func=cmd_engines)

@@ -18,18 +18,18 @@ from validation.checks.divergence import (
 )
 from validation.cli.args import (
     EXIT_OK,
-    add_engine_arg,
+    add_integrator_arg,
     add_json_arg,
     add_model_args,
-    add_run_args,
+    add_simulation_args,
     check_out_file,
-    check_work,
     dump,
+    engine_options,
     params_from_args,
 )
-from validation.cli.ci_options import progress_enabled
-from validation.cli.commands.analysis import add_stepper_arg, engine_options
+from validation.cli.commands.analysis import run_engine
 from validation.cli.domains import add_option
+from validation.cli.main import add_command, command
 
 #: rod length l (m) and bob / cart mass m/M of the rigid body when not given
 DEFAULT_ROD_LENGTH, DEFAULT_MASS_RATIO = 1.0, 1e-3
@@ -64,18 +64,18 @@ def add_physical_args(p: argparse.ArgumentParser, *, note: str = "") -> None:
         default=DEFAULT_MASS_RATIO,
         help=f"bob / cart mass m/M (dimensionless){note}",
     )
-    add_option(
+    add_integrator_arg(
         p,
-        "--integrator",
-        domain="integrator",
-        default=None,
-        metavar="NAME",
-        help="MuJoCo integrator of the rigid body (Euler, implicit, implicitfast, RK4; "
-        f"default Euler; engines with their own stepper refuse it){note}",
+        "MuJoCo integrator of the rigid body (Euler, implicit, implicitfast, RK4; default Euler; "
+        f"engines with their own stepper refuse it){note}",
     )
 
 
 # ---------------------------------------------------------------- simulate
+@command(
+    "Time series of any registered engine in the shared schema, saved as .npz; reports every "
+    "realisation that diverged or left the small-angle regime."
+)
 def cmd_simulate(a: argparse.Namespace) -> int:
     params = params_from_args(a)
     check_out_file("--out", a.out, (".npz",))
@@ -89,19 +89,7 @@ def cmd_simulate(a: argparse.Namespace) -> int:
                 f"--integrator {a.integrator}: engine {a.engine!r} steps with "
                 f"({', '.join(follows) or engine.capabilities.integrator})"
             )
-    check_work("--duration", a.realizations, a.duration, params.dt, force=a.force)
-    traj = engine.simulate(
-        a.model,
-        params,
-        a.duration,
-        a.realizations,
-        a.seed,
-        amplitude=a.amplitude,
-        decimate=a.decimate,
-        threads=a.threads,
-        progress=not a.json and progress_enabled(),
-        **kw,
-    )
+    traj = run_engine(a, engine.simulate, params, amplitude=a.amplitude, decimate=a.decimate, **kw)
     try:
         traj.save_npz(a.out)
     except WriteError as exc:
@@ -138,6 +126,10 @@ def cmd_simulate(a: argparse.Namespace) -> int:
 
 
 # --------------------------------------------------------------- linearize
+@command(
+    "Linearisation of the rigid-body CIP about upright (mjd_transitionFD) beside the reduced "
+    "model's matrices."
+)
 def cmd_linearize(a: argparse.Namespace) -> int:
     from cip.linearize import linearize, transition_check
 
@@ -178,28 +170,14 @@ def cmd_linearize(a: argparse.Namespace) -> int:
 
 # ------------------------------------------------------------------ parser
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "linearize",
-        help="A, B of the MuJoCo CIP beside the reduced model's",
-        description="Linearisation of the rigid-body CIP about upright "
-        "(mjd_transitionFD) beside the reduced model's matrices.",
-    )
+    """Add ``linearize`` and ``simulate`` to the parser."""
+    p = add_command(sub, "linearize", cmd_linearize)
     add_model_args(p, beta=False)
     add_physical_args(p)
     add_json_arg(p)
-    p.set_defaults(func=cmd_linearize)
 
-    p = sub.add_parser(
-        "simulate",
-        help="time series of any engine to a .npz file",
-        description="Time series of any registered engine in the shared "
-        "schema, saved as .npz; reports every realisation that diverged or "
-        "left the small-angle regime.",
-    )
-    add_model_args(p)
-    add_run_args(p, duration=10.0, realizations=4)
-    add_engine_arg(p)
-    add_stepper_arg(p)
+    p = add_command(sub, "simulate", cmd_simulate)
+    add_simulation_args(p, duration=10.0, realizations=4)
     add_option(
         p, "--amplitude", domain="amplitude", default=0.01, help="initial balancing error (m)"
     )
@@ -216,4 +194,3 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="output file (.npz, in a writable directory), required",
     )
     add_json_arg(p)
-    p.set_defaults(func=cmd_simulate)

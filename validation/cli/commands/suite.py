@@ -13,14 +13,20 @@ from cipcore.params import ParameterError
 from validation.checks.divergence import group_lines
 from validation.cli.args import (
     EXIT_OK,
+    add_mjcf_arg,
+    add_no_figures_arg,
+    add_profile_arg,
+    add_seed_arg,
+    add_threads_arg,
     check_out_dir,
     check_out_file,
     interrupt_signals,
     interrupted_status,
 )
-from validation.cli.ci_options import add_ci_options, progress_enabled
+from validation.cli.ci_options import add_ci_options, junit_file, progress_enabled
 from validation.cli.domains import add_option
 from validation.cli.engine_options import add_engine_options, check_engine_options
+from validation.cli.main import add_command, command
 from validation.profiles import PROFILES
 
 
@@ -50,6 +56,10 @@ def _quiet_say(text: str) -> None:
     return None
 
 
+@command(
+    "Every agreement check, the paper table, the figures and the report.  Each finished stage is "
+    "saved in --out at once (results.json marked partial until the end); --resume reuses them."
+)
 def cmd_run(a: argparse.Namespace) -> int:
     """The function is long because it turns every way a run can end into its exit code and one
     message.
@@ -112,7 +122,7 @@ def cmd_run(a: argparse.Namespace) -> int:
                 f"{a.integrator or 'of the file'})"
             )
     out = check_out_dir("--out", a.out)
-    junit = check_out_file("--junit", a.junit, (".xml",)) if a.junit else None
+    junit = junit_file(a)
     if baseline is not None and a.baseline_mode == "auto":  # other models: refused before work
         from validation.regression.fingerprint import model_digests
 
@@ -206,6 +216,9 @@ def cmd_run(a: argparse.Namespace) -> int:
     return run_status(checks_failed, moved)
 
 
+@command(
+    "Run the suite without figures (or take --from) and write the results as a regression baseline."
+)
 def cmd_baseline(a: argparse.Namespace) -> int:
     from cipcore.scenario import EngineTarget
     from validation.report.document import write_json
@@ -238,25 +251,13 @@ def cmd_baseline(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add the commands to the parser. The function is long because it declares every option of
-    its commands, one call each.
-    """
-
-    p = sub.add_parser(
-        "run",
-        help="the validation suite: checks, paper table, figures, report",
-        description="Every agreement check, the paper table, the figures and "
-        "the report.  Each finished stage is saved in --out at once "
-        "(results.json marked partial until the end); --resume reuses them.",
-    )
-    add_option(
+    """Add ``run`` and ``baseline`` to the parser."""
+    p = add_command(sub, "run", cmd_run)
+    add_profile_arg(
         p,
-        "--profile",
-        domain="profile",
-        default="quick",
-        help="run size: smoke (seconds, every code path), quick (every check, "
-        "minutes), paper (the paper's counts and durations), robustness (paper, plus the "
-        "full grid of estimator choices)",
+        "run size: smoke (seconds, every code path), quick (every check, minutes), paper (the "
+        "paper's counts and durations), robustness (paper, plus the full grid of estimator "
+        "choices)",
     )
     add_option(
         p,
@@ -284,48 +285,23 @@ def register(sub: argparse._SubParsersAction) -> None:
         "CPU or BLAS differ, statistical when a version differs",
     )
     add_ci_options(p)
-    add_option(
+    add_mjcf_arg(
         p,
-        "--mjcf",
-        domain="mjcf in",
-        action="append",
-        metavar="PATH",
-        help="a user's CIP model file instead of the shipped models/cip_<model>.xml "
-        "(repeat for single and coupled; the model is read from the file)",
+        "a user's CIP model file instead of the shipped models/cip_<model>.xml (repeat for "
+        "single and coupled; the model is read from the file)",
     )
-    add_option(
-        p,
-        "--workers",
-        "--threads",
-        domain="workers",
-        dest="workers",
-        default=None,
-        help="threads / processes (count >= 1; default: all cores; --threads as in "
-        "`engines` and `simulate`); results do not depend on it",
-    )
+    add_threads_arg(p, suite=True)
     p.add_argument(
         "--resume",
         action="store_true",
         help="reuse the stages an interrupted run with the same profile left in --out",
     )
-    p.add_argument("--no-figures", action="store_true", help="skip the figures")
+    add_no_figures_arg(p, "skip the figures")
     add_engine_options(p)
-    add_option(
-        p,
-        "--seed",
-        domain="seed",
-        default=None,
-        help="root seed of every stage (integer >= 0; default: the profile's, 2011)",
-    )
-    p.set_defaults(func=cmd_run)
+    add_seed_arg(p, None, "root seed of every stage (integer >= 0; default: the profile's, 2011)")
 
-    p = sub.add_parser(
-        "baseline",
-        help="write a baseline results file for --baseline",
-        description="Run the suite without figures (or take --from) and write "
-        "the results as a regression baseline.",
-    )
-    add_option(p, "--profile", domain="profile", default="quick", help="run size")
+    p = add_command(sub, "baseline", cmd_baseline)
+    add_profile_arg(p, "run size")
     add_option(
         p,
         "--out",
@@ -342,15 +318,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="RESULTS.json",
         help="use an existing results.json instead of running",
     )
-    add_option(
-        p,
-        "--workers",
-        "--threads",
-        domain="workers",
-        dest="workers",
-        default=None,
-        help="threads / processes (count >= 1; default: all cores; --threads as in "
-        "`engines` and `simulate`); results do not depend on it",
-    )
+    add_threads_arg(p, suite=True)
     add_engine_options(p)
-    p.set_defaults(func=cmd_baseline)

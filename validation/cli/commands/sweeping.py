@@ -13,6 +13,7 @@ from validation.cli.args import (
     EXIT_OK,
     add_engine_arg,
     add_force_arg,
+    add_seed_arg,
     check_out_dir,
     check_out_file,
     check_work,
@@ -21,6 +22,7 @@ from validation.cli.args import (
 )
 from validation.cli.ci_options import progress_enabled
 from validation.cli.domains import add_option
+from validation.cli.main import add_command, command
 from validation.sweeps import (
     METRICS,
     Study,
@@ -83,6 +85,10 @@ def study_from_args(a: argparse.Namespace) -> Study:
         raise ParameterError(text) from None
 
 
+@command(
+    "A parameter study: every grid point's metrics, each point saved at once (rerun to resume), "
+    "the directory locked while it runs, the dataset in DIR/sweep.nc and a report."
+)
 def cmd_sweep(a: argparse.Namespace) -> int:
     study = study_from_args(a)
     n_points = len(study.points())
@@ -168,6 +174,16 @@ def _dataset_path(text: str) -> Path:
     return path
 
 
+def add_dataset_arg(p: argparse.ArgumentParser) -> None:
+    """DATASET: a sweep directory or its sweep.nc (read by :func:`_dataset_path`)."""
+    add_option(p, "dataset", domain="dataset", help="sweep directory or sweep.nc")
+
+
+@command(
+    "One sweep metric against a swept parameter: the median over realisations with its "
+    "percentile-bootstrap 95 % band (a per-point quantity such as rms_ratio_median with its "
+    "stored interval); axes labelled with units."
+)
 def cmd_sweep_plot(a: argparse.Namespace) -> int:
     from validation.sweeps import plot_metric
     from validation.sweeps.store import read_dataset
@@ -179,6 +195,10 @@ def cmd_sweep_plot(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+@command(
+    "The sweep dataset as a CSV table: one row per grid point and realisation, per-point "
+    "quantities repeated; column names carry the units."
+)
 def cmd_sweep_export(a: argparse.Namespace) -> int:
     """One CSV row per grid point and realisation; columns ``name [units]``."""
     from cipcore.atomic import write_text
@@ -197,17 +217,10 @@ def cmd_sweep_export(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add the commands to the parser. The function is long because it declares every option of
-    its commands, one call each.
+    """Add ``sweep``, ``sweep-plot`` and ``sweep-export`` to the parser. The function is long
+    because it declares every option of the three commands, one call each.
     """
-
-    p = sub.add_parser(
-        "sweep",
-        help="parameter study over a grid (resumable; local or Dask)",
-        description="A parameter study: every grid point's metrics, each "
-        "point saved at once (rerun to resume), the directory locked while it "
-        "runs, the dataset in DIR/sweep.nc and a report.",
-    )
+    p = add_command(sub, "sweep", cmd_sweep)
     add_option(
         p,
         "study",
@@ -259,7 +272,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         domain="duration",
         help="simulated time per realisation (s; default: the study's)",
     )
-    add_option(p, "--seed", domain="seed", help="study seed (default: the study's)")
+    add_seed_arg(p, None, "study seed (default: the study's)")
     add_option(p, "--out", domain="out dir", metavar="DIR",
                help="sweep directory (default: sweep-NAME)")  # fmt: skip
     add_option(
@@ -278,31 +291,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="wait for a sweep holding --out to finish instead of failing",
     )
     add_force_arg(p)
-    p.set_defaults(func=cmd_sweep)
 
-    p = sub.add_parser(
-        "sweep-plot",
-        help="a sweep metric against a parameter, with 95 %% bands",
-        description="One sweep metric against a swept parameter: the median over "
-        "realisations with its percentile-bootstrap 95 % band (a per-point quantity such as "
-        "rms_ratio_median with its stored interval); axes labelled with units.",
-    )
-    add_option(p, "dataset", domain="dataset", help="sweep directory or sweep.nc")
+    p = add_command(sub, "sweep-plot", cmd_sweep_plot)
+    add_dataset_arg(p)
     add_option(p, "--metric", domain="text", required=True,
                help="a variable of the dataset, required")  # fmt: skip
     add_option(p, "--x", domain="text", required=True,
                help="the swept parameter on the x axis, required")  # fmt: skip
     add_option(p, "--out", domain="plot out", metavar="FILE.png",
                help="figure file (default: METRIC_vs_X.png)")  # fmt: skip
-    p.set_defaults(func=cmd_sweep_plot)
 
-    p = sub.add_parser(
-        "sweep-export",
-        help="a sweep dataset as CSV (one row per point and realisation)",
-        description="The sweep dataset as a CSV table: one row per grid point and "
-        "realisation, per-point quantities repeated; column names carry the units.",
-    )
-    add_option(p, "dataset", domain="dataset", help="sweep directory or sweep.nc")
+    p = add_command(sub, "sweep-export", cmd_sweep_export)
+    add_dataset_arg(p)
     add_option(p, "--csv", domain="csv out", required=True, metavar="FILE.csv",
                help="CSV file to write, required")  # fmt: skip
-    p.set_defaults(func=cmd_sweep_export)

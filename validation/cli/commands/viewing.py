@@ -14,14 +14,17 @@ from validation.cli.args import (
     add_engine_arg,
     add_force_arg,
     add_model_args,
+    add_seed_arg,
+    add_stepper_arg,
     check_out_file,
     check_work,
+    engine_options,
     params_from_args,
 )
 from validation.cli.ci_options import progress_enabled
-from validation.cli.commands.analysis import add_stepper_arg, engine_options
 from validation.cli.commands.simulation import add_physical_args, physical_from_args
 from validation.cli.domains import add_option
+from validation.cli.main import add_command, command
 
 
 def _add_run_args(p: argparse.ArgumentParser) -> None:
@@ -29,8 +32,7 @@ def _add_run_args(p: argparse.ArgumentParser) -> None:
     add_engine_arg(p, default="mujoco")
     add_stepper_arg(p)
     add_option(p, "--duration", domain="duration", default=10.0, help="simulated time (s)")
-    add_option(p, "--seed", domain="seed", default=0,
-               help="root seed (the same draws as every other command)")  # fmt: skip
+    add_seed_arg(p, 0, "root seed (the same draws as every other command)")
     add_option(p, "--realization", domain="realization", default=0,
                help="which realisation of the seed to show (index >= 0)")  # fmt: skip
     add_option(p, "--amplitude", domain="amplitude", default=0.01,
@@ -82,6 +84,10 @@ def check_frames(a: argparse.Namespace, pixels: bool = True) -> None:
         )
 
 
+@command(
+    "Simulate a run of any engine (same seed and parameters as the other commands) and draw it on "
+    "the rigid-body model with MuJoCo's offscreen renderer (MUJOCO_GL=egl or osmesa)."
+)
 def cmd_render(a: argparse.Namespace) -> int:
     from validation.report.animation import (
         check_video_path,
@@ -119,6 +125,10 @@ def cmd_render(a: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+@command(
+    "Play a simulated run in MuJoCo's passive viewer, in real time, until the window is closed "
+    "(needs a display)."
+)
 def cmd_view(a: argparse.Namespace) -> int:
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise ParameterError(
@@ -149,19 +159,13 @@ def cmd_view(a: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("render", help="a GIF or MP4 of a simulated run (offscreen MuJoCo)",
-                       description="Simulate a run of any engine (same seed and parameters "
-                       "as the other commands) and draw it on the rigid-body model with "
-                       "MuJoCo's offscreen renderer (MUJOCO_GL=egl or osmesa).")  # fmt: skip
+    """Add ``render`` and ``view`` to the parser."""
+    p = add_command(sub, "render", cmd_render)
     _add_run_args(p)
     add_option(p, "--width", domain="pixels", default=480, help="frame width (pixels)")
     add_option(p, "--height", domain="pixels", default=320, help="frame height (pixels)")
     add_option(p, "--out", domain="video out", required=True, metavar="FILE.gif",
                    help="video file (.gif, or .mp4 with ffmpeg), required")  # fmt: skip
-    p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("view", help="MuJoCo's interactive viewer on a simulated run",
-                       description="Play a simulated run in MuJoCo's passive viewer, in real "
-                       "time, until the window is closed (needs a display).")  # fmt: skip
+    p = add_command(sub, "view", cmd_view)
     _add_run_args(p)
-    p.set_defaults(func=cmd_view)
