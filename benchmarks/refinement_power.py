@@ -9,6 +9,21 @@ then, at one seed, the engine with each fault of ``--faults`` at the sizes of
     python benchmarks/refinement_power.py [--engines mujoco,drake] [--seeds 20]
         [--faults mass_ratio,pendulum_length,gravity,tip_damping,cart_damping]
         [--sizes 1e-3,1e-4,1e-5,1e-6]
+
+With ``--float32``, the float32 table instead (the float32 setting of
+:data:`validation.checks.refinement.FLOAT32_SETTINGS`): for each engine of
+``--engines`` (``mujoco-float32`` is the float32 stand-in,
+:func:`validation.checks.refinement.float32_stand_in`; a float64 engine's rows are the
+linearisation's own error), each model and each response amplitude of
+``--amplitudes`` (m; the model's float32 window), E0, the interval's upper end and the
+observed order of the correct engine at ``--seeds`` seeds and the count that fails the
+model's float32 floor; then each fault at each size at ``--fault-seeds`` seeds (E0
+range, the least upper end, flagged count), and per fault the smallest size flagged at
+every seed, at the setting's amplitude:
+
+    python benchmarks/refinement_power.py --float32 --engines mujoco-float32,physx,mujoco
+        [--amplitudes 1e-5,1e-4,1e-3,3e-3,1e-2] [--sizes 1e-3,1e-4] [--fault-seeds 20]
+        [--fault-amplitudes setting]
 """
 
 from __future__ import annotations
@@ -31,7 +46,16 @@ def main() -> None:
     )
     ap.add_argument("--sizes", default="1e-3,1e-4,1e-5,1e-6")
     ap.add_argument("--models", default="single,coupled")
+    ap.add_argument("--float32", action="store_true", help="the float32 table (docstring)")
+    ap.add_argument("--amplitudes", default="1e-5,1e-4,1e-3,3e-3,1e-2",
+                    help="--float32: the response amplitudes (m)")  # fmt: skip
+    ap.add_argument("--fault-seeds", type=int, default=20, help="--float32: seeds per fault")
+    ap.add_argument("--fault-amplitudes", default="setting",
+                    help="--float32: amplitudes (m) of the fault rows, or 'setting'")  # fmt: skip
     a = ap.parse_args()
+    if a.float32:
+        float32_table(a)
+        return
     from cipcore.registry import get_engine
     from validation.checks.agreement import model_file
     from validation.checks.refinement import refinement_check
@@ -79,6 +103,101 @@ def main() -> None:
                             flagged.append(size)
                     smallest = f"{min(flagged):g}" if flagged else "none"
                     print(f"  {kind}: smallest flagged {smallest}", flush=True)
+
+
+#: float32 engines not (yet) in the registry, by name: the module holding ``ENGINE``
+UNREGISTERED = {"physx": "cip.engines.physx", "newton": "cip.engines.newton"}
+
+
+def _engine(name: str):
+    """The engine ``name``: the float32 stand-in, a registered engine or one of
+    :data:`UNREGISTERED`; None (with a line saying why) where it cannot run here."""
+    import importlib
+
+    from cipcore.params import ParameterError
+    from cipcore.registry import get_engine
+    from validation.checks.refinement import float32_stand_in
+
+    if name == "mujoco-float32":
+        return float32_stand_in()
+    try:
+        eng = get_engine(name)
+    except ParameterError as e:
+        if name not in UNREGISTERED:
+            print(f"{name}: skipped ({e})")
+            return None
+        eng = importlib.import_module(UNREGISTERED[name]).ENGINE
+    why = eng.unavailable()
+    if why:
+        print(f"{name}: skipped ({why})")
+        return None
+    return eng
+
+
+def _runs(model, m, eng, backend, amplitude: float, window: float, seeds: int):
+    """(E0, interval's upper end, order, passes the model's float32 setting) per seed."""
+    from validation.checks.refinement import (
+        FLOAT32_SETTINGS,
+        RefinementSetting,
+        least_order,
+        refine,
+    )
+
+    rod = "soft" if eng.capabilities.rod == "soft" else "rigid"
+    need = least_order(eng.capabilities)
+    out = []
+    for seed in range(1, seeds + 1):
+        setting = RefinementSetting(seed, window=window, amplitude=amplitude)
+        r = refine(m, backend, rod=rod, setting=setting)
+        out.append((r.e0, r.e0_interval[1], r.order, r.passes(FLOAT32_SETTINGS[model].floor, need)))
+    return out
+
+
+def float32_table(a: argparse.Namespace) -> None:
+    """The ``--float32`` table (module docstring): is long because it prints three tables
+    (clean by amplitude, faults by size, the smallest flagged size) in one pass."""
+    from validation.checks.agreement import model_file
+    from validation.checks.refinement import FLOAT32_SETTINGS
+    from validation.faults.catalogue import make_fault
+
+    print(f"# load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    for name in a.engines.split(","):
+        eng = _engine(name)
+        if eng is None:
+            continue
+        for model in a.models.split(","):
+            s = FLOAT32_SETTINGS[model]
+            m = model_file(model)
+            print(f"{name} {model}: float32 setting |e| {s.amplitude:g} m, {s.window:g} s, floor "
+                  f"{s.floor:g}", flush=True)  # fmt: skip
+            for amp in (float(x) for x in a.amplitudes.split(",")):
+                t0 = time.perf_counter()
+                r = np.array(_runs(model, m, eng, eng.rollout(), amp, s.window, a.seeds))
+                dt = (time.perf_counter() - t0) / a.seeds
+                print(f"  clean |e| {amp:g} m: E0 median {np.median(r[:, 0]):.2g}, max "
+                      f"{r[:, 0].max():.2g}; upper end max {r[:, 1].max():.2g}; order "
+                      f"{r[:, 2].min():.3f}-{r[:, 2].max():.3f}; {int((r[:, 3] == 0).sum())}/"
+                      f"{a.seeds} fail the floor; {dt:.1f} s a run", flush=True)  # fmt: skip
+            amps = [s.amplitude] if a.fault_amplitudes == "setting" else [
+                float(x) for x in a.fault_amplitudes.split(",")]  # fmt: skip
+            for amp in amps:
+                for kind in a.faults.split(","):
+                    flagged = []
+                    for size in (float(x) for x in a.sizes.split(",")):
+                        f = make_fault(kind, size)
+                        if f.not_applicable(eng) or model not in f.models:
+                            continue
+                        r = np.array(_runs(model, m, eng, f.backend(eng.rollout()), amp, s.window,
+                                           a.fault_seeds))  # fmt: skip
+                        n_flag = int((r[:, 3] == 0).sum())
+                        print(f"  {kind} {size:g} at |e| {amp:g} m: E0 {r[:, 0].min():.2g}-"
+                              f"{r[:, 0].max():.2g}, upper end min {r[:, 1].min():.2g}; flagged "
+                              f"{n_flag}/{a.fault_seeds}", flush=True)  # fmt: skip
+                        if n_flag == a.fault_seeds:
+                            flagged.append(size)
+                    smallest = f"{min(flagged):g}" if flagged else "none"
+                    print(f"  {kind} at |e| {amp:g} m: smallest flagged at every seed {smallest}",
+                          flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -128,6 +128,12 @@ class BalanceParams:
         """Euler–Maruyama factor nu / sqrt(dt) of the held random gain (:mod:`cipcore.noise`)."""
         return self.nu / math.sqrt(self.dt)
 
+    @property
+    def law(self) -> tuple[float, float, float, float, float]:
+        """(alpha, beta, gamma, noise_scale, dt): the constants of eqs. (3) and (5) in the
+        order the compiled kernels take them (:mod:`reduced._kernels`)."""
+        return (self.alpha, self.beta, self.gamma, self.noise_scale, self.dt)
+
     def with_(self, **changes: float) -> BalanceParams:
         """A copy with some parameters changed (validated again)."""
         return replace(self, **changes)

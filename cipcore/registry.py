@@ -31,6 +31,8 @@ ENGINES: dict[str, str] = {
     "pinocchio": "cip.engines.pinocchio:ENGINE",
     "dart": "cip.engines.dart:ENGINE",
     "physx": "cip.engines.physx:ENGINE",
+    "newton": "cip.engines.newton:ENGINE",
+    "genesis": "cip.engines.genesis:ENGINE",
 }
 
 REFERENCE = "reduced"

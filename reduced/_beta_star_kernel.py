@@ -19,8 +19,10 @@ with three things that kernel fixes made variable, for :mod:`reduced.beta_star`:
   balancer's (e_1, e_1').
 
 With ``hold = 1`` and scheme 0 or 1 every operation is the one
-:func:`reduced._kernels.advance_errors` performs, in the same order, so the
-Benettin sums are equal to the bit (``tests/test_beta_star_study.py``).
+:func:`reduced._kernels.advance_errors` performs, in the same order (both step
+with :func:`reduced._steps.error_step` and renormalise with
+:func:`reduced._steps.renormalise`), so the Benettin sums are equal to the bit
+(``tests/test_beta_star_study.py``).
 """
 
 from __future__ import annotations
@@ -30,7 +32,9 @@ import math
 import numpy as np
 from numba import njit
 
-from cipcore.control_kernel import delayed_random_gain, ring_exchange, ring_next
+from cipcore.control_kernel import delayed_control, delayed_random_gain, ring_next
+
+from ._steps import error_acceleration, error_step, error_sum, renormalise
 
 #: the deterministic steppers, by the code the kernel takes
 SCHEME_CODES = {"semi-implicit": 0, "explicit": 1, "heun": 2}
@@ -39,81 +43,35 @@ RECORD_COLUMNS = ("logsum", "delay-state", "state", "positions", "balancer-1")
 
 
 @njit(inline="always", cache=True, nogil=True)
-def _euler_step(y, hist, p, draws, coef, explicit):
-    """One semi-implicit (``explicit`` False) or explicit Euler step of every balancer."""
-    alpha, beta, gamma, scale, dt = coef[0], coef[1], coef[2], coef[3], coef[4]
-    nc = hist.shape[0]
-    esum = 0.0
-    for i in range(nc):
-        esum += y[2 * i]
-    for i in range(nc):
-        e = y[2 * i]
-        v = y[2 * i + 1]
-        e_delayed = ring_exchange(hist[i], p, e)
-        a = -gamma * v + alpha * esum / nc - delayed_random_gain(beta, scale, draws[i], e_delayed)
-        if explicit:
-            e = e + dt * v
-            v = v + dt * a
-        else:
-            v = v + dt * a
-            e = e + dt * v
-        y[2 * i] = e
-        y[2 * i + 1] = v
-
-
-@njit(inline="always", cache=True, nogil=True)
-def _heun_step(y, hist, p, draws, coef, work):
+def _heun_step(y, hist, p, draws, model, work):
     """One Heun step: an explicit Euler predictor, then the trapezoid of the two slopes.
 
     The corrector reads the delayed error one step later, e_i(n + 1 - d), which the
     ring holds in the slot after ``p`` once e_i(n) is stored; the random gain is the
-    same in both stages (held over the step).  ``work`` is (4, C) scratch.
+    same in both stages (held over the step).  Arguments as
+    :func:`reduced._steps.error_step`'s; ``work`` is (4, C) scratch.
     """
-    alpha, beta, gamma, scale, dt = coef[0], coef[1], coef[2], coef[3], coef[4]
+    alpha, beta, gamma, scale, dt = model
     nc = hist.shape[0]
     d = hist.shape[1]
     pn = ring_next(p, d)
-    esum = 0.0
-    for i in range(nc):
-        esum += y[2 * i]
+    esum = error_sum(y, nc)
     esum_p = 0.0
     for i in range(nc):
         e = y[2 * i]
         v = y[2 * i + 1]
-        e_delayed = ring_exchange(hist[i], p, e)
-        a = -gamma * v + alpha * esum / nc - delayed_random_gain(beta, scale, draws[i], e_delayed)
+        u = delayed_control(hist[i], p, e, beta, scale, draws[i])
+        a = error_acceleration(v, esum, nc, alpha, gamma, u)
         work[0, i] = a
         work[1, i] = e + dt * v
         work[2, i] = v + dt * a
         esum_p += work[1, i]
     for i in range(nc):
         vp = work[2, i]
-        a2 = -gamma * vp + alpha * esum_p / nc
-        a2 -= delayed_random_gain(beta, scale, draws[i], hist[i, pn])
+        u = delayed_random_gain(beta, scale, draws[i], hist[i, pn])
+        a2 = error_acceleration(vp, esum_p, nc, alpha, gamma, u)
         y[2 * i] = y[2 * i] + 0.5 * dt * (y[2 * i + 1] + vp)
         y[2 * i + 1] = y[2 * i + 1] + 0.5 * dt * (work[0, i] + a2)
-
-
-@njit(inline="always", cache=True, nogil=True)
-def _renormalise(y, hist):
-    """Divide the whole delay state by its Euclidean norm and return the norm (the sum in
-    :func:`reduced._kernels.advance_errors`' order)."""
-    nc = hist.shape[0]
-    d = hist.shape[1]
-    s = 0.0
-    for m in range(2 * nc):
-        s += y[m] * y[m]
-    for i in range(nc):
-        for m in range(d):
-            s += hist[i, m] * hist[i, m]
-    norm = math.sqrt(s)
-    inv = 1.0 / norm
-    for m in range(2 * nc):
-        y[m] *= inv
-    for i in range(nc):
-        for m in range(d):
-            hist[i, m] *= inv
-    return norm
 
 
 @njit(cache=True, nogil=True)
@@ -176,6 +134,7 @@ def advance_variant(
     """
     nb, nh, nc = xi.shape
     d = hist.shape[2]
+    model = (coef[0], coef[1], coef[2], coef[3], coef[4])
     n0, every, transient = steps[0], steps[1], steps[2]
     first = np.searchsorted(marks, n0, side="right")
     work = np.empty((4, nc))
@@ -185,13 +144,13 @@ def advance_variant(
         jm = first
         for k in range(nh * hold):
             if scheme == 2:
-                _heun_step(y[r], hist[r], p, xi[r, k // hold], coef, work)
+                _heun_step(y[r], hist[r], p, xi[r, k // hold], model, work)
             else:
-                _euler_step(y[r], hist[r], p, xi[r, k // hold], coef, scheme == 1)
+                error_step(y[r], hist[r], p, xi[r, k // hold], model, scheme != 1)
             p = ring_next(p, d)
             nk = n0 + k + 1
             if nk % every == 0:
-                norm = _renormalise(y[r], hist[r])
+                norm = renormalise(y[r], hist[r])
                 if nk > transient:
                     sums[r, 0] += math.log(norm)
                 else:

@@ -13,9 +13,10 @@ The delay is a ring buffer ``hist[r, i, :]`` of the last d = tau/dt values of
 e_i.  At step n the slot ``p`` holds e_i at step n - d; it is read, then
 overwritten with e_i at step n.  The random gain over step n is
 R_{i,n} = 1 + noise_scale * xi[r, n, i], noise_scale = nu / sqrt(dt).  The law,
-the ring and the recording rule are :mod:`cipcore.control_kernel`'s, inlined.
+the ring and the recording rule are :mod:`cipcore.control_kernel`'s, the step
+and the error coordinates' step :mod:`reduced._steps`', all inlined.
 
-Steppers (``semi_implicit``):
+Steppers (``semi_implicit``, :func:`reduced._steps.euler_step`):
   * True: semi-implicit Euler as in MuJoCo's ``Euler`` integrator,
     v <- v + dt*a(x, v);  x <- x + dt*v(new).
   * False: explicit Euler–Maruyama, x <- x + dt*v;  v <- v + dt*a(x, v).
@@ -28,13 +29,9 @@ import math
 import numpy as np
 from numba import njit
 
-from cipcore.control_kernel import (
-    delayed_random_gain,
-    first_sample,
-    ring_exchange,
-    ring_next,
-    sample_slot,
-)
+from cipcore.control_kernel import delayed_control, first_sample, ring_next, sample_slot
+
+from ._steps import error_step, euler_step, record_balancer, renormalise
 
 
 @njit(cache=True, nogil=True)
@@ -43,11 +40,7 @@ def advance_positions(
     state: np.ndarray,
     hist: np.ndarray,
     pos: int,
-    alpha: float,
-    beta: float,
-    gamma: float,
-    noise_scale: float,
-    dt: float,
+    law: tuple,
     semi_implicit: bool,
     n0: int,
     every: int,
@@ -61,6 +54,8 @@ def advance_positions(
     state : (nb, 2 + 2C) [q_T, v_T, q_M1, v_M1, ...], updated in place.
     hist : (nb, C, d) ring buffer of past balancing errors, updated in place.
     pos : ring-buffer slot holding e at step n0 - d (same for every realisation).
+    law : (alpha (1/s^2), beta (1/s^2), gamma (1/s), noise_scale (nu / sqrt(dt)),
+        dt (s)): :attr:`cipcore.params.BalanceParams.law`.
     n0, every : global index of the first step; a sample is recorded *before*
         every step whose global index is a multiple of ``every``.
     rec : (nb, S, C, 4) output samples [tip pos, tip vel, base pos, base vel];
@@ -70,6 +65,7 @@ def advance_positions(
     -------
     The ring-buffer slot for the next call.
     """
+    alpha, beta, gamma, noise_scale, dt = law
     nb, n, nc = xi.shape
     d = hist.shape[2]
     rec_start = first_sample(n0, every)
@@ -83,33 +79,20 @@ def advance_positions(
             j = sample_slot(n0 + k, every, rec_start, nrec)
             if j >= 0:
                 for i in range(nc):
-                    rec[r, j, i, 0] = q_t
-                    rec[r, j, i, 1] = v_t
-                    rec[r, j, i, 2] = state[r, 2 + 2 * i]
-                    rec[r, j, i, 3] = state[r, 3 + 2 * i]
+                    q_m, v_m = state[r, 2 + 2 * i], state[r, 3 + 2 * i]
+                    record_balancer(rec, r, j, i, q_t, v_t, q_m, v_m)
             esum = 0.0
             for i in range(nc):
                 q_m = state[r, 2 + 2 * i]
                 v_m = state[r, 3 + 2 * i]
                 e = q_t - q_m
                 esum += e
-                e_delayed = ring_exchange(hist[r, i], p, e)
-                a_m = -gamma * v_m + delayed_random_gain(beta, noise_scale, xi[r, k, i], e_delayed)
-                if semi_implicit:
-                    v_m = v_m + dt * a_m
-                    q_m = q_m + dt * v_m
-                else:
-                    q_m = q_m + dt * v_m
-                    v_m = v_m + dt * a_m
+                u = delayed_control(hist[r, i], p, e, beta, noise_scale, xi[r, k, i])
+                q_m, v_m = euler_step(q_m, v_m, -gamma * v_m + u, dt, semi_implicit)
                 state[r, 2 + 2 * i] = q_m
                 state[r, 3 + 2 * i] = v_m
             a_t = -gamma * v_t + alpha * esum / nc
-            if semi_implicit:
-                v_t = v_t + dt * a_t
-                q_t = q_t + dt * v_t
-            else:
-                q_t = q_t + dt * v_t
-                v_t = v_t + dt * a_t
+            q_t, v_t = euler_step(q_t, v_t, a_t, dt, semi_implicit)
             p = ring_next(p, d)
         state[r, 0] = q_t
         state[r, 1] = v_t
@@ -123,11 +106,7 @@ def advance_errors(
     y: np.ndarray,
     hist: np.ndarray,
     pos: int,
-    alpha: float,
-    beta: float,
-    gamma: float,
-    noise_scale: float,
-    dt: float,
+    law: tuple,
     semi_implicit: bool,
     n0: int,
     renorm_every: int,
@@ -136,61 +115,35 @@ def advance_errors(
 ) -> int:
     """Advance the balancing errors (Lyapunov mode) with Benettin renormalisation.
 
-        Integrates the error coordinates only (eq. (2) / (6)),
+    Integrates the error coordinates only (eq. (2) / (6)),
 
-            e_i'' + gamma e_i' - (alpha / C) sum_j e_j + beta R_i(t) e_i(t - tau) = 0,
+        e_i'' + gamma e_i' - (alpha / C) sum_j e_j + beta R_i(t) e_i(t - tau) = 0,
 
-        which removes the neutral common drift of tip and bases (a direction in which
-    the absolute positions grow freely and would swamp e with rounding noise).
-        Every ``renorm_every`` steps the whole state, (e_i, e_i') and the delay
-        history, is divided by its Euclidean norm; after ``transient_steps`` the
-        log of each norm is added to ``logsum[r]``.  The same discrete map as
-        :func:`advance_positions` applied to e = q_T - q_M (the model is linear).
+    which removes the neutral common drift of tip and bases (a direction in which
+    the absolute positions grow freely and would swamp e with rounding noise),
+    one :func:`reduced._steps.error_step` per step.  Every ``renorm_every`` steps
+    the whole state, (e_i, e_i') and the delay history, is divided by its Euclidean
+    norm (:func:`reduced._steps.renormalise`); after ``transient_steps`` the log of
+    each norm is added to ``logsum[r]``.  The same discrete map as
+    :func:`advance_positions` applied to e = q_T - q_M (the model is linear).
 
-        y : (nb, 2C) [e_1, e_1', e_2, e_2', ...];  hist : (nb, C, d).
+    y : (nb, 2C) [e_1, e_1', e_2, e_2', ...], updated in place;  logsum : (nb,) the
+    running sum of the log norms after ``transient_steps``;  renormalisation after
+    every global step count that is a multiple of ``renorm_every``; ``xi``,
+    ``hist``, ``pos``, ``n0``, the other parameters and the returned slot as
+    :func:`advance_positions`'.
     """
-    nb, n, nc = xi.shape
+    nb, n, _ = xi.shape
     d = hist.shape[2]
     p_out = pos
     for r in range(nb):
         p = pos
         for k in range(n):
-            esum = 0.0
-            for i in range(nc):
-                esum += y[r, 2 * i]
-            for i in range(nc):
-                e = y[r, 2 * i]
-                v = y[r, 2 * i + 1]
-                e_delayed = ring_exchange(hist[r, i], p, e)
-                a = (
-                    -gamma * v
-                    + alpha * esum / nc
-                    - delayed_random_gain(beta, noise_scale, xi[r, k, i], e_delayed)
-                )
-                if semi_implicit:
-                    v = v + dt * a
-                    e = e + dt * v
-                else:
-                    e = e + dt * v
-                    v = v + dt * a
-                y[r, 2 * i] = e
-                y[r, 2 * i + 1] = v
+            error_step(y[r], hist[r], p, xi[r, k], law, semi_implicit)
             p = ring_next(p, d)
             nk = n0 + k + 1
             if nk % renorm_every == 0:
-                s = 0.0
-                for m in range(2 * nc):
-                    s += y[r, m] * y[r, m]
-                for i in range(nc):
-                    for m in range(d):
-                        s += hist[r, i, m] * hist[r, i, m]
-                norm = math.sqrt(s)
-                inv = 1.0 / norm
-                for m in range(2 * nc):
-                    y[r, m] *= inv
-                for i in range(nc):
-                    for m in range(d):
-                        hist[r, i, m] *= inv
+                norm = renormalise(y[r], hist[r])
                 if nk > transient_steps:
                     logsum[r] += math.log(norm)
         p_out = p

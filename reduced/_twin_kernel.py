@@ -7,7 +7,8 @@ One step is one of MuJoCo's integrators (``mjModel.opt.integrator``), as its
 ``mj_Euler``, ``mj_implicit`` and ``mj_RungeKutta`` define them:
 
 * ``Euler`` (scheme 0): accelerations a = M^-1 (f + J^T lambda) from the current
-  state, then v <- v + h a, q <- q + h v(new) (semi-implicit);
+  state, then v <- v + h a, q <- q + h v(new) (semi-implicit,
+  :func:`reduced._steps.euler_step`);
 * ``implicit`` / ``implicitfast`` (scheme 1): the constraint force lambda as for
   Euler, then a = (M - h D)^-1 (f + J^T lambda), D = d f / d v the velocity
   derivative of the smooth forces (here the affine-bias dampers; the Coriolis
@@ -23,15 +24,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cipcore.control_kernel import (
-    delayed_random_gain,
-    first_sample,
-    ring_exchange,
-    ring_next,
-    sample_slot,
-)
+from cipcore.control_kernel import delayed_control, first_sample, ring_next, sample_slot
 
-from ._twin_schemes import merson_step, newmark_step
+from ._steps import euler_step, record_balancer
+from ._twin_schemes import apply_rod_force, merson_step, newmark_step, tip_separation
 
 
 @njit(cache=True, nogil=True)
@@ -65,8 +61,7 @@ def _accelerations(
         ae[i] = mstep[1, 0] * qx[i] + mstep[1, 1] * qe[i]
     if rod:
         # soft equality on the tip separation: J = (+1, +1, -1, -1) in (x1, e1, x2, e2)
-        sep = (st[0, 0] + st[0, 1]) - (st[1, 0] + st[1, 1])
-        sep_rate = (st[0, 2] + st[0, 3]) - (st[1, 2] + st[1, 3])
+        sep, sep_rate = tip_separation(st)
         a0 = 0.0
         for i in range(2):
             sgn = 1.0 if i == 0 else -1.0
@@ -74,12 +69,7 @@ def _accelerations(
                          + (minv[1, 0] * qx[i] + minv[1, 1] * qe[i]))  # fmt: skip
         aref = -b_rod * sep_rate - k_rod * sep
         f = (aref - a0) / (a_rod + r_rod)
-        cx = (mstep[0, 0] + mstep[0, 1]) * f
-        ce = (mstep[1, 0] + mstep[1, 1]) * f
-        ax[0] += cx
-        ae[0] += ce
-        ax[1] -= cx
-        ae[1] -= ce
+        apply_rod_force(mstep, f, ax, ae)
 
 
 @njit(cache=True, nogil=True)
@@ -129,14 +119,12 @@ def advance_twin(
     every: int,
     rec: np.ndarray,
 ) -> int:
-    """Advance the twin over ``xi.shape[1]`` steps.
+    """Advance the twin over ``xi.shape[1]`` steps; ``xi``, ``hist``, ``pos``, ``n0``,
+    ``every``, ``rec`` and the returned slot as :func:`reduced._kernels.advance_positions`'.
 
     Parameters
     ----------
-    xi : (nb, n, C) standard normal draws for steps n0 .. n0+n-1.
     state : (nb, C, 4) [x, e, v, w] per balancer, updated in place.
-    hist : (nb, C, d) ring buffer of past balancing errors, updated in place.
-    pos : ring-buffer slot holding e at step n0 - d.
     coef : [alpha, gamma_tip, gamma_cart, mass_ratio, beta, noise_scale, dt,
         rod (0/1), rod_stiffness k*imp (1/s^2), rod_damping b (1/s),
         rod_mobility A (per unit M), rod_regulariser R (per unit M)].
@@ -146,12 +134,6 @@ def advance_twin(
         RK4), (M - h D)^-1 (implicit, implicitfast) or (M - (h^2/2) K)^-1 (Newmark).
     scheme : 0 Euler, 1 implicit / implicitfast, 2 RK4 (module docstring); 3 Newmark,
         4 RK-Merson (:mod:`reduced._twin_schemes`).
-    rec : (nb, S, C, 4) samples [tip pos, tip vel, base pos, base vel] recorded
-        *before* every step whose global index is a multiple of ``every``.
-
-    Returns
-    -------
-    The ring-buffer slot for the next call.
     """
     nb, n, nc = xi.shape
     d = hist.shape[2]
@@ -168,13 +150,10 @@ def advance_twin(
             j = sample_slot(n0 + k, every, rec_start, nrec)
             if j >= 0:
                 for i in range(nc):
-                    rec[r, j, i, 0] = state[r, i, 0] + state[r, i, 1]
-                    rec[r, j, i, 1] = state[r, i, 2] + state[r, i, 3]
-                    rec[r, j, i, 2] = state[r, i, 0]
-                    rec[r, j, i, 3] = state[r, i, 2]
+                    x, e, v, w = state[r, i, 0], state[r, i, 1], state[r, i, 2], state[r, i, 3]
+                    record_balancer(rec, r, j, i, x + e, v + w, x, v)
             for i in range(nc):
-                e_delayed = ring_exchange(hist[r, i], p, state[r, i, 1])
-                u[i] = delayed_random_gain(beta, s_noise, xi[r, k, i], e_delayed)
+                u[i] = delayed_control(hist[r, i], p, state[r, i, 1], beta, s_noise, xi[r, k, i])
             if scheme == 2:
                 _rk4_step(state[r], u, coef, minv, h)
             elif scheme == 3:
@@ -184,12 +163,9 @@ def advance_twin(
             else:
                 _accelerations(state[r], u, coef, minv, mstep, ax, ae)
                 for i in range(nc):
-                    v = state[r, i, 2] + h * ax[i]
-                    w = state[r, i, 3] + h * ae[i]
-                    state[r, i, 2] = v
-                    state[r, i, 3] = w
-                    state[r, i, 0] = state[r, i, 0] + h * v
-                    state[r, i, 1] = state[r, i, 1] + h * w
+                    st = state[r, i]
+                    st[0], st[2] = euler_step(st[0], st[2], ax[i], h, True)
+                    st[1], st[3] = euler_step(st[1], st[3], ae[i], h, True)
             p = ring_next(p, d)
         p_out = p
     return p_out

@@ -54,6 +54,28 @@ MERSON_A = np.array([
 MERSON_B = np.array([1.0 / 6.0, 0.0, 0.0, 2.0 / 3.0, 1.0 / 6.0])
 
 
+@njit(inline="always", cache=True, nogil=True)
+def tip_separation(st: np.ndarray) -> tuple[float, float]:
+    """The rod's coordinate delta = J q = (x_1 + e_1) - (x_2 + e_2) (m) and its rate J v (m/s)
+    of a coupled state ``st`` (2, 4) [x, e, v, w], J = (+1, +1, -1, -1) in (x1, e1, x2, e2)."""
+    sep = (st[0, 0] + st[0, 1]) - (st[1, 0] + st[1, 1])
+    sep_rate = (st[0, 2] + st[0, 3]) - (st[1, 2] + st[1, 3])
+    return sep, sep_rate
+
+
+@njit(inline="always", cache=True, nogil=True)
+def apply_rod_force(mat: np.ndarray, f: float, ax: np.ndarray, ae: np.ndarray) -> None:
+    """Add the rod's force ``f`` (per unit M) along J^T, J = (+1, +1, -1, -1) in
+    (x1, e1, x2, e2), through ``mat`` (2, 2), M^-1 or the step's matrix, to the
+    accelerations ``ax``, ``ae`` (m/s^2) of the two balancers."""
+    cx = (mat[0, 0] + mat[0, 1]) * f
+    ce = (mat[1, 0] + mat[1, 1]) * f
+    ax[0] += cx
+    ae[0] += ce
+    ax[1] -= cx
+    ae[1] -= ce
+
+
 @njit(cache=True, nogil=True)
 def _held_forces(st: np.ndarray, u: np.ndarray, coef: np.ndarray, fx: np.ndarray, fe: np.ndarray):
     """The forces held over a step (per unit M) on x and e: control and dampers at ``st``."""
@@ -91,12 +113,7 @@ def _rigid_accelerations(
     if coef[7] > 0.5 and nc == 2:
         ja0 = (ax[0] + ae[0]) - (ax[1] + ae[1])
         lam = (target - ja0) / (2.0 * (smat[0, 0] + smat[0, 1] + smat[1, 0] + smat[1, 1]))
-        cx = (smat[0, 0] + smat[0, 1]) * lam
-        ce = (smat[1, 0] + smat[1, 1]) * lam
-        ax[0] += cx
-        ae[0] += ce
-        ax[1] -= cx
-        ae[1] -= ce
+        apply_rod_force(smat, lam, ax, ae)
 
 
 @njit(cache=True, nogil=True)
@@ -114,8 +131,7 @@ def newmark_step(st: np.ndarray, u: np.ndarray, coef: np.ndarray, smat: np.ndarr
     target = 0.0
     if nc == 2:
         # the rod at position level: J q+ = 0  <=>  J a+ = -2 (sep + h sep') / h^2
-        sep = (st[0, 0] + st[0, 1]) - (st[1, 0] + st[1, 1])
-        sep_rate = (st[0, 2] + st[0, 3]) - (st[1, 2] + st[1, 3])
+        sep, sep_rate = tip_separation(st)
         target = -2.0 * (sep + h * sep_rate) / (h * h)
     _rigid_accelerations(st, fx, fe, coef, smat, h, target, ax, ae)
     for i in range(nc):

@@ -21,7 +21,7 @@ from cipcore.schema import Trajectory, check_amplitude
 
 from ._kernels import advance_positions
 from .lyapunov import lyapunov
-from .simulate import record_fields, simulate
+from .simulate import initial_positions, record_fields, simulate
 
 #: The reduced kernel has no chunk limit of its own; the runner accepts this many steps.
 MAX_CHUNK = 1 << 20
@@ -39,16 +39,14 @@ class ReducedChunks:
         self.max_chunk = MAX_CHUNK
         self.step = 0
         self.d = params.delay_steps
-        self.state = np.zeros((n_realizations, 2 + 2 * nc))
-        self.state[:, 0] = amplitude
-        self.hist = np.full((n_realizations, nc, self.d), amplitude)
+        self.state, self.hist = initial_positions(n_realizations, nc, self.d, amplitude)
 
     def advance(self, xi: np.ndarray) -> dict[str, np.ndarray]:
         p, n = self.params, xi.shape[1]
         rec = np.empty((xi.shape[0], n, xi.shape[2], 4))
         advance_positions(
             np.ascontiguousarray(xi, dtype=float), self.state, self.hist, self.step % self.d,
-            p.alpha, p.beta, p.gamma, p.noise_scale, p.dt, True, self.step, 1, rec,
+            p.law, True, self.step, 1, rec,
         )  # fmt: skip
         self.step += n
         return record_fields(rec)

@@ -25,22 +25,16 @@ from typing import Any
 
 import numpy as np
 
-from cipcore.driver import run_blocks
 from cipcore.engine import Capabilities
 from cipcore.gpu import declared_device, warp_device, warp_unavailable
-from cipcore.models import BalanceModel, get_model
-from cipcore.noise import GainNoise, make_noise
-from cipcore.params import STEPPERS, BalanceParams, check_choice, whole_steps
+from cipcore.models import BalanceModel
+from cipcore.noise import GainNoise
+from cipcore.params import STEPPERS, BalanceParams, check_choice
 from cipcore.scenario import Execution, Recording, Scenario
-from cipcore.schema import (
-    Trajectory,
-    check_amplitude,
-    check_duration,
-    plan_recording,
-)
+from cipcore.schema import Trajectory
 
 from .engine import ReducedEngine
-from .simulate import _store, record_fields
+from .simulate import final_state, initial_positions, plan_run, record_fields, sample_rows
 
 #: Steps per uploaded chunk of draws (R * 4096 * C * 8 bytes on the device).
 GPU_CHUNK_STEPS = 4096
@@ -51,18 +45,27 @@ _KERNEL: dict[str, Any] = {}
 def _kernel():
     """The warp kernel, built on first use (warp is an optional dependency).
 
-    It is long because the warp kernel must be one function: device code cannot call back
-    into Python.
+    The delay ring, the recording rule (:mod:`cipcore.control_kernel`), the Euler
+    step and a balancer's sample (:mod:`reduced._steps`) are the numba kernels'
+    own Python functions, compiled by warp (``wp.func``); the law is
+    :mod:`cipcore.control_warp`'s (a typed literal), tested bit-equal to numba's.
     """
     if "k" in _KERNEL:
         return _KERNEL["k"]
     import warp as wp
 
+    from cipcore.control_kernel import first_sample, ring_exchange, ring_next, sample_slot
     from cipcore.control_warp import delayed_random_gain
+
+    from ._steps import euler_step, record_balancer
 
     wp.config.quiet = True
     wp.init()
     f64 = wp.float64
+    first, slot, exchange, next_slot, step, record = (
+        wp.func(f.py_func)
+        for f in (first_sample, sample_slot, ring_exchange, ring_next, euler_step, record_balancer)
+    )
 
     @wp.kernel
     def advance_positions(
@@ -84,49 +87,27 @@ def _kernel():
         r = wp.tid()
         n = xi.shape[1]
         nc = xi.shape[2]
-        d = hist.shape[2]
-        rec_start = (n0 + every - 1) // every
-        nrec = rec.shape[1]
+        rec_start = first(n0, every)
         q_t = state[r, 0]
         v_t = state[r, 1]
         p = pos
         for k in range(n):
-            nk = n0 + k
-            if nk % every == 0:
-                j = nk // every - rec_start
-                if j < nrec:
-                    for i in range(nc):
-                        rec[r, j, i, 0] = q_t
-                        rec[r, j, i, 1] = v_t
-                        rec[r, j, i, 2] = state[r, 2 + 2 * i]
-                        rec[r, j, i, 3] = state[r, 3 + 2 * i]
+            j = slot(n0 + k, every, rec_start, rec.shape[1])
+            if j >= 0:
+                for i in range(nc):
+                    record(rec, r, j, i, q_t, v_t, state[r, 2 + 2 * i], state[r, 3 + 2 * i])
             esum = f64(0.0)
             for i in range(nc):
                 q_m = state[r, 2 + 2 * i]
                 v_m = state[r, 3 + 2 * i]
                 e = q_t - q_m
                 esum = esum + e
-                e_delayed = hist[r, i, p]
-                hist[r, i, p] = e
-                a_m = -gamma * v_m + delayed_random_gain(beta, noise_scale, xi[r, k, i], e_delayed)
-                if semi_implicit != 0:
-                    v_m = v_m + dt * a_m
-                    q_m = q_m + dt * v_m
-                else:
-                    q_m = q_m + dt * v_m
-                    v_m = v_m + dt * a_m
+                u = delayed_random_gain(beta, noise_scale, xi[r, k, i], exchange(hist[r, i], p, e))
+                q_m, v_m = step(q_m, v_m, -gamma * v_m + u, dt, semi_implicit)
                 state[r, 2 + 2 * i] = q_m
                 state[r, 3 + 2 * i] = v_m
-            a_t = -gamma * v_t + alpha * esum / f64(nc)
-            if semi_implicit != 0:
-                v_t = v_t + dt * a_t
-                q_t = q_t + dt * v_t
-            else:
-                q_t = q_t + dt * v_t
-                v_t = v_t + dt * a_t
-            p = p + 1
-            if p == d:
-                p = 0
+            q_t, v_t = step(q_t, v_t, -gamma * v_t + alpha * esum / f64(nc), dt, semi_implicit)
+            p = next_slot(p, hist.shape[2])
         state[r, 0] = q_t
         state[r, 1] = v_t
 
@@ -159,11 +140,10 @@ class DeviceReduced:
         self.params, self.nc, self.R = params, nc, n_realizations
         self.d = params.delay_steps
         self.semi = int(semi_implicit)
-        state = np.zeros((n_realizations, 2 + 2 * nc))
-        state[:, 0] = amplitude
+        state, hist = initial_positions(n_realizations, nc, self.d, amplitude)
         with wp.ScopedDevice(self.device):
             self.state = wp.array(state, dtype=wp.float64)
-            self.hist = wp.array(np.full((n_realizations, nc, self.d), amplitude), dtype=wp.float64)
+            self.hist = wp.array(hist, dtype=wp.float64)
             self.xi = wp.zeros((n_realizations, max_chunk, nc), dtype=wp.float64)
         self.max_chunk = max_chunk
         self.step = 0
@@ -178,7 +158,7 @@ class DeviceReduced:
         if n > self.max_chunk:
             raise ValueError(f"advance at most {self.max_chunk} steps at a time, got {n}")
         n0 = self.step
-        j0, j1 = -(-n0 // every), -(-(n0 + n) // every)
+        j0, j1 = sample_rows(n0, n, every)
         nrec = j1 - j0
         if nrec not in self._rec:
             self._rec[nrec] = wp.zeros((self.R, nrec, self.nc, 4), dtype=wp.float64,
@@ -218,44 +198,21 @@ def simulate_gpu(
     whole batch is one launch per chunk.  The returned Trajectory equals the CPU
     kernel's.  ``device`` is the warp device (default: warp's).
     """
-    model, params = scenario.model, scenario.params
-    decimate = recording.decimate
-    nc = get_model(model).n_controllers
+    params = scenario.params
     check_choice("stepper", stepper, STEPPERS)
-    duration = check_duration(scenario.duration)
-    n_steps = whole_steps("duration", duration, params.dt)
-    amplitude = check_amplitude(scenario.amplitude)
-    noise = make_noise(noise, scenario.seed, scenario.realizations, nc)
-    nreal = noise.n_realizations
-    n_samples, fields = plan_recording(n_steps, nreal, nc, recording)
-    chunk = min(GPU_CHUNK_STEPS, n_steps)
-    dev = DeviceReduced(nc, params, nreal, amplitude, device=device, max_chunk=chunk,
-                        semi_implicit=stepper == "semi-implicit")  # fmt: skip
-    out = {f: np.empty((nreal, n_samples, nc), dtype=recording.dtype) for f in fields}
+    run = plan_run(scenario, recording, noise, params.dt)
+    chunk = min(GPU_CHUNK_STEPS, run.n_steps)
+    dev = DeviceReduced(run.nc, params, run.noise.n_realizations, run.amplitude, device=device,
+                        max_chunk=chunk, semi_implicit=stepper == "semi-implicit")  # fmt: skip
 
-    def work(block: slice, xi: np.ndarray, n0: int) -> None:
-        j0 = -(-n0 // decimate)
-        j1 = -(-(n0 + xi.shape[1]) // decimate)
-        rec = dev.advance(xi, every=decimate)
-        _store(out, rec, block, j0, j1)
+    def advance(block: slice, xi: np.ndarray, n0: int, nrec: int) -> np.ndarray:
+        return dev.advance(xi, every=run.decimate)  # one block: every realisation
 
-    run_blocks(noise, n_steps, work, threads=1, chunk_steps=chunk,
-               progress=execution.progress and "reduced-gpu")  # fmt: skip
-    state = dev.final_state()
-    attrs = {
-        "engine": "reduced-gpu",
-        "model": model,
-        "stepper": stepper,
-        "seed": noise.seed,
-        "first_realization": noise.first_realization,
-        "amplitude": amplitude,
-        "duration": duration,
-        "decimate": int(decimate),
-        **params.as_dict(),
-        "device": dev.device,
-        "final_state": state.tolist() if nreal * state.shape[1] <= 4096 else None,
-    }
-    return Trajectory(time=np.arange(n_samples) * (params.dt * decimate), data=out, attrs=attrs)
+    run.run(advance, threads=1, chunk_steps=chunk,
+            progress=execution.progress and "reduced-gpu")  # fmt: skip
+    attrs = run.attrs("reduced-gpu", stepper, params, device=dev.device,
+                      final_state=final_state(dev.final_state()))  # fmt: skip
+    return run.trajectory(params.dt, attrs)
 
 
 class GpuChunks:

@@ -131,8 +131,8 @@ def lyapunov_gains(
     def work(block: slice, xi: np.ndarray, n0: int) -> None:
         for g, p in enumerate(params_seq):
             advance_errors(
-                xi, y[g, block], hist[g, block], n0 % d, p.alpha, p.beta, p.gamma,
-                p.noise_scale, p.dt, semi, n0, renorm_steps, transient_steps, logsum[g, block],
+                xi, y[g, block], hist[g, block], n0 % d, p.law, semi, n0, renorm_steps,
+                transient_steps, logsum[g, block],
             )  # fmt: skip
 
     run_blocks(noise, n_steps, work, threads=execution.threads,

@@ -120,8 +120,8 @@ def simulate_nonlinear(
         j1 = -(-(n0 + n) // decimate)
         rec = np.empty((xi.shape[0], j1 - j0, 2))
         advance_angle(
-            xi, state[block], hist[block], n0 % d, params.alpha, params.beta, params.gamma,
-            params.noise_scale, floor_scale, params.dt, semi, n0, decimate, rec,
+            xi, state[block], hist[block], n0 % d, params.law, floor_scale, semi, n0,
+            decimate, rec,
         )  # fmt: skip
         for name, arr in out.items():
             arr[block, j0:j1, 0] = rec[..., 1 if name == "balancing_error_velocity" else 0]

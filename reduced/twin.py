@@ -62,20 +62,13 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from cipcore.driver import run_blocks
-from cipcore.models import get_model
-from cipcore.noise import GainNoise, make_noise
-from cipcore.params import ParameterError, check_positive, whole_steps
+from cipcore.noise import GainNoise
+from cipcore.params import ParameterError, check_positive
 from cipcore.scenario import Execution, Recording, Scenario
-from cipcore.schema import (
-    Trajectory,
-    check_amplitude,
-    check_duration,
-    plan_recording,
-)
+from cipcore.schema import Trajectory
 
 from ._twin_kernel import advance_twin
-from .simulate import _store
+from .simulate import n_controllers, plan_run
 
 #: MuJoCo's integrator names -> the kernel's scheme (:func:`reduced._twin_kernel.advance_twin`);
 #: "Newmark" (beta 1/2, gamma 1) and "RK-Merson" (fixed step) hold the rod rigid.
@@ -165,21 +158,15 @@ def simulate_twin(
     e(t) = amplitude, t < 0.  The twin records float64 (``recording.dtype`` is not
     used) and shows no progress bar.
     """
-    model, params, decimate = scenario.model, scenario.params, recording.decimate
-    nc = get_model(model).n_controllers
+    params = scenario.params
+    nc = n_controllers(scenario.model)
     if twin.rod and nc != 2:
-        raise ParameterError(f"a rod needs the coupled model, got model {model!r}")
-    duration = check_duration(scenario.duration)
-    n_steps = whole_steps("duration", duration, twin.dt)
-    amplitude = check_amplitude(scenario.amplitude)
-    noise = make_noise(noise, scenario.seed, scenario.realizations, nc)
-    nreal = noise.n_realizations
-    n_samples, fields = plan_recording(n_steps, nreal, nc, replace(recording, dtype=np.float64))
-    d = params.delay_steps
+        raise ParameterError(f"a rod needs the coupled model, got model {scenario.model!r}")
+    run = plan_run(scenario, replace(recording, dtype=np.float64), noise, twin.dt)
+    nreal, d = run.noise.n_realizations, params.delay_steps
     state = np.zeros((nreal, nc, 4))
-    state[:, :, 1] = amplitude
-    hist = np.full((nreal, nc, d), amplitude)
-    out = {f: np.empty((nreal, n_samples, nc)) for f in fields}
+    state[:, :, 1] = run.amplitude
+    hist = np.full((nreal, nc, d), run.amplitude)
     coef = np.array([
         twin.alpha, twin.gamma_tip, twin.gamma_cart, twin.mass_ratio, params.beta,
         params.noise_scale, twin.dt, 1.0 if twin.rod else 0.0, twin.rod_stiffness,
@@ -189,27 +176,13 @@ def simulate_twin(
     mstep = twin.step_matrix()
     scheme = TWIN_SCHEMES[twin.integrator]
 
-    def work(block: slice, xi: np.ndarray, n0: int) -> None:
-        n = xi.shape[1]
-        j0 = -(-n0 // decimate)
-        j1 = -(-(n0 + n) // decimate)
-        rec = np.empty((xi.shape[0], j1 - j0, nc, 4))
+    def advance(block: slice, xi: np.ndarray, n0: int, nrec: int) -> np.ndarray:
+        rec = np.empty((xi.shape[0], nrec, nc, 4))
         advance_twin(
-            xi, state[block], hist[block], n0 % d, coef, minv, mstep, scheme, n0, decimate, rec
+            xi, state[block], hist[block], n0 % d, coef, minv, mstep, scheme, n0, run.decimate, rec
         )
-        _store(out, rec, block, j0, j1)
+        return rec
 
-    run_blocks(noise, n_steps, work, threads=execution.threads)
-    attrs = {
-        "engine": "twin",
-        "model": model,
-        "stepper": twin.integrator,
-        "seed": noise.seed,
-        "first_realization": noise.first_realization,
-        "amplitude": amplitude,
-        "duration": duration,
-        "decimate": int(decimate),
-        **params.as_dict(),
-        "twin": twin.as_dict(),
-    }
-    return Trajectory(time=np.arange(n_samples) * (twin.dt * decimate), data=out, attrs=attrs)
+    run.run(advance, threads=execution.threads)
+    attrs = run.attrs("twin", twin.integrator, params, twin=twin.as_dict())
+    return run.trajectory(twin.dt, attrs)

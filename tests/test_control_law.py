@@ -2,9 +2,9 @@
 
 The numba kernels inline :mod:`cipcore.control_kernel`; the warp kernels use
 :mod:`cipcore.control_warp`, checked here bit-equal to the same law on warp's
-CPU device in float64 (``reduced-gpu``) and float32 (``mujoco-warp``); the warp
-kernel's own copy of the delay ring and the recording rule is checked through
-``reduced-gpu``'s trajectories, bit-equal to the numba kernel's.
+CPU device in float64 (``reduced-gpu``) and float32 (``mujoco-warp``); the same ring
+and recording functions, compiled by warp, are checked through ``reduced-gpu``'s
+trajectories, bit-equal to the numba kernel's.
 """
 
 # no ``from __future__ import annotations``: warp reads the test kernel's annotations as objects
@@ -112,3 +112,22 @@ def test_the_warp_ring_and_recording_equal_the_numba_kernel_bit_for_bit(model, m
     dev = gpu.simulate_gpu(scn, device="cpu", recording=Recording(decimate=7))
     for field, x in ref.data.items():
         assert np.array_equal(dev[field], x), field
+
+
+def test_delayed_control_is_the_law_of_the_ring_exchange() -> None:
+    """One balancer's delayed control: the ring's old value through the law, the new one in."""
+    from cipcore.control_kernel import delayed_control
+
+    ring = np.array([1.5, -2.0, 3.0])
+    assert delayed_control(ring, 1, 0.25, 20.0, 0.5, 2.0) == delayed_random_gain(
+        20.0, 0.5, 2.0, -2.0
+    )
+    assert ring[1] == 0.25
+
+
+def test_euler_step_semi_implicit_uses_the_new_velocity() -> None:
+    """The shared stepper: semi-implicit (MuJoCo's Euler) and explicit Euler-Maruyama."""
+    from reduced._steps import euler_step
+
+    assert euler_step(1.0, 2.0, 3.0, 0.5, True) == (1.0 + 0.5 * (2.0 + 0.5 * 3.0), 2.0 + 0.5 * 3.0)
+    assert euler_step(1.0, 2.0, 3.0, 0.5, False) == (1.0 + 0.5 * 2.0, 2.0 + 0.5 * 3.0)

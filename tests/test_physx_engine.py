@@ -116,10 +116,9 @@ def test_rod_holds_the_tips_at_its_length() -> None:
 
 @pytest.mark.parametrize("model", ["single", "coupled"])
 def test_refinement_within_float32_floor(model: str) -> None:
-    """Refinement converges, order 1, to within the engine's float32 floor (single: E0
-    interval up to 3.1e-5 over seeds 1-10, floor 5e-5; coupled: the rod's float32 noise,
-    up to 2.2e-2, floor 5e-2).  The shared floor (1e-6) is not reached: the check's
-    verdict is fail on both models (the module docstring's numbers)."""
+    """Refinement converges, order 1, to within the float32 setting's floor
+    (validation.checks.refinement.FLOAT32_SETTINGS: 1.2e-4 single, 1.6e-4 coupled; the
+    largest upper end over seeds 1-20 8.2e-5 and 1.1e-4): the check passes."""
     c = refinement_check(model, model_file(model), ENGINE, 1)
     assert c.values["e0_interval"][1] <= REFINEMENT_FLOOR_FLOAT32[model], c.values
     if model == "single":  # the coupled model's order is the rod's float32 noise (0.6-0.7)
@@ -127,7 +126,8 @@ def test_refinement_within_float32_floor(model: str) -> None:
 
 
 def test_tip_mass_error_fails_refinement() -> None:
-    """A 1e-3 error of the tip mass lifts E0 above the float32 floor (seed 1: 1.5e-4)."""
+    """A 1e-3 error of the tip mass lifts E0 above the float32 setting's floor (E0 6.8e-4
+    or more)."""
     fault = make_fault("mass_ratio", 1e-3)
     c = refinement_check(
         "single", model_file("single"), ENGINE, 1, backend=fault.backend(ENGINE.rollout())

@@ -145,3 +145,111 @@ def test_a_level_converged_to_rounding_is_left_out_of_the_order():
     _, blind, _, _ = extrapolate(levels)
     _, p, _, _ = extrapolate(levels, roundoff=refinement.ROUNDOFF)
     assert abs(blind - 4) > 0.5 and abs(p - 4) < 0.05
+
+
+# ------------------------------------------------------------ float32 engines
+def test_the_float64_setting_is_the_module_floor_and_amplitude():
+    """A float64 engine is judged at 1e-5 m against 1e-6, its check carrying no float32
+    keys (the exact-mode regression compares these numbers and strings)."""
+    from cip.engines.rigid_body import MUJOCO
+    from validation.checks.agreement import model_file
+
+    ps = refinement.precision_setting("single", "float64")
+    assert (ps.amplitude, ps.window, ps.floor) == (1e-5, 1.0, FLOOR)
+    c = refinement.refinement_check("single", model_file("single"), MUJOCO, 1)
+    assert c.status == "pass" and c.values["floor"] == FLOOR
+    assert "setting" not in c.values and "float32" not in c.details + c.tolerance
+    assert "largest |e| 1e-05 m" in c.details
+    assert "<= 1e-06 (the correct engines' E0 with margin)" in c.tolerance
+
+
+def test_float32_state_rounds_every_step():
+    """The stand-in's states are float32 numbers, and a step of it is MuJoCo's step of the
+    float32-rounded state, rounded."""
+    import mujoco
+
+    from cip.runner import MujocoRollout
+    from validation.checks.agreement import model_file
+
+    m = model_file("single")
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.tile(np.zeros(mujoco.mj_stateSize(m, spec)), (2, 1))
+    state[:, 2] = [0.01, -0.02]
+    ctrl = np.random.default_rng(0).standard_normal((2, 3, m.nu))
+    out = np.empty((2, 3, state.shape[1]))
+    refinement.float32_state(MujocoRollout)(m, 2, 1)(state, ctrl, out)
+    assert np.array_equal(out, out.astype(np.float32).astype(np.float64))
+    ref = np.empty((2, 1, state.shape[1]))
+    MujocoRollout(m, 2, 1)(out[:, 0], ctrl[:, 1:2], ref)
+    assert np.array_equal(out[:, 1], ref[:, 0].astype(np.float32).astype(np.float64))
+    assert not np.array_equal(out[:, 1], ref[:, 0])  # the rounding did something
+
+
+def _float32_check(model: str, fault: tuple[str, float] | None = None):
+    from validation.checks.agreement import model_file
+    from validation.faults.catalogue import make_fault
+
+    eng = refinement.float32_stand_in()
+    backend = make_fault(*fault).backend(eng.rollout()) if fault else None
+    return refinement.refinement_check(model, model_file(model), eng, 1, backend=backend)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_the_float32_stand_in_passes_at_its_setting_and_fails_a_1e3_tip_mass(model):
+    """MuJoCo's Euler rounded to float32 every step: correct, it passes the float32 setting
+    (beyond the float64 floor: it is no float64 engine); a 1e-3 tip-mass error fails it."""
+    clean = _float32_check(model)
+    ps = refinement.FLOAT32_SETTINGS[model]
+    assert clean.status == "pass", clean.values
+    assert clean.values["setting"] == "float32" and clean.values["floor"] == ps.floor
+    assert clean.values["amplitude_m"] == ps.amplitude and clean.values["window_s"] == ps.window
+    assert "float32 setting" in clean.details and "float32 setting" in clean.tolerance
+    assert clean.values["e0_interval"][1] > FLOOR  # float32 rounding: not a float64 engine
+    faulty = _float32_check(model, ("mass_ratio", 1e-3))
+    assert faulty.status == "fail" and faulty.values["e0_interval"][0] > ps.floor, faulty.values
+
+
+def test_no_float32_setting_for_an_unknown_model():
+    with pytest.raises(ValueError, match="no float32 refinement setting"):
+        refinement.precision_setting("triple", "float32")
+
+
+def _physx():
+    pytest.importorskip("sapien", reason="sapien is not installed (pip install 'cipval[physx]')")
+    from cip.engines.physx import ENGINE
+    from cipcore.registry import engine_names, register_engine
+
+    if ENGINE.name not in engine_names():
+        register_engine(ENGINE.name, ENGINE)
+    return ENGINE
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_physx_passes_refinement_at_the_float32_setting(model):
+    """PhysX (SAPIEN, CPU, float32) on the correct model: the float32 setting passes it
+    through refinement_check (seed 1), order 1."""
+    from validation.checks.agreement import model_file
+
+    c = refinement.refinement_check(model, model_file(model), _physx(), 1)
+    assert c.status == "pass", c.values
+    assert c.values["setting"] == "float32" and abs(c.values["order"] - 1.0) < 0.1
+
+
+def test_physx_coupled_fails_a_1e3_tip_mass_at_the_float32_setting():
+    """At the float64 setting the rod's float32 resolution (E0 5e-3 at 1e-5 m) hid a 1e-3
+    tip-mass error on the coupled model; at the float32 setting it fails (seed 1)."""
+    from validation.checks.agreement import model_file
+    from validation.faults.catalogue import make_fault
+
+    eng = _physx()
+    backend = make_fault("mass_ratio", 1e-3).backend(eng.rollout())
+    c = refinement.refinement_check("coupled", model_file("coupled"), eng, 1, backend=backend)
+    floor = refinement.FLOAT32_SETTINGS["coupled"].floor
+    assert c.status == "fail" and c.values["e0_interval"][0] > floor, c.values
+
+
+def test_physx_states_the_float32_floors():
+    """cip.engines.physx states the floors it is held to: the float32 setting's."""
+    from cip.engines.physx import REFINEMENT_FLOOR_FLOAT32
+
+    assert REFINEMENT_FLOOR_FLOAT32 == {m: s.floor for m, s in refinement.FLOAT32_SETTINGS.items()}

@@ -12,6 +12,10 @@
   refinement);
 * :mod:`~cip.engines.physx`: PhysX through SAPIEN (CPU, float32; semi-implicit Euler, a rigid
   rod; judged by time-step refinement);
+* :mod:`~cip.engines.newton`: Newton's Featherstone solver on warp (float32, a rigid rod by
+  cipval's projection; judged by time-step refinement);
+* :mod:`~cip.engines.genesis`: Genesis (its rigid solver on the CPU, semi-implicit Euler,
+  a rigid rod by cipval's projection; judged by time-step refinement);
 * :mod:`~cip.engines.rollout`: :class:`~cip.engines.rollout.ModelRollout`, the half of a
   rollout backend every engine built from the compiled model shares;
 * :mod:`~cip.engines.process`: an engine in another program (the chunk protocol).

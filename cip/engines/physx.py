@@ -75,19 +75,22 @@ the coupled model's error floor: an absolute rod noise of about 6e-8 m, which pu
 Validation: no exact twin of cipval's (``capabilities.twin`` None): cipval judges the
 engine by time-step refinement (:mod:`validation.checks.refinement`: the open-loop
 trajectories at dt = h .. h/8 must converge, order 1, to the exact zero-order-hold
-solution of the linearised rigid body, the rod rigid).  Float32 does not reach the
-check's floor (1e-6, made for float64 engines).  Measured (sapien 3.0.3,
-``refinement_check``, seeds 1-10): single model E0 3.1e-6 to 8.8e-6 (median 5.9e-6), the
-interval's upper end at most 3.1e-5, observed order 1.001-1.002 (MuJoCo's Euler with
-its state rounded to float32 after every step: E0 7.9e-6, 3.4e-6, 4.3e-6 for seeds
-1-3, the same floor); a 1e-3 error of the tip mass (``make_fault("mass_ratio",
-1e-3)``) gives E0 7.0e-5 to 1.5e-4, the interval's upper end at least 1.2e-4: a floor
-of :data:`REFINEMENT_FLOOR_FLOAT32` would separate them in 10 of 10 seeds (a 1e-4
-error, E0 2.1e-5, would not be seen).  Coupled model: E0 4.8e-3 to 7.4e-3, upper end
-up to 2.2e-2, observed order 0.58 to 0.72: the rod's float32 resolution, not a
-discretisation error (E0 falls as 1 / amplitude: 6.1e-4 at 1e-4 m with order 0.97,
-6.8e-5 at 1e-3 m with order 1.001); the 1e-3 tip-mass error is within that noise
-(E0 5.0e-3 to 9.4e-3).  The check therefore fails on both models at the shared floor.
+solution of the linearised rigid body, the rod rigid), at the float32 setting
+(``validation.checks.refinement.FLOAT32_SETTINGS``: single model |e| 1e-3 m, coupled
+3e-3 m, 4 s; floors :data:`REFINEMENT_FLOOR_FLOAT32`).  The float64 setting (1e-5 m,
+1 s, floor 1e-6) is out of float32's reach: measured there (sapien 3.0.3,
+``refinement_check``, seeds 1-20) the single model's E0 is 3.1e-6 to 1.4e-5, the
+interval's upper end up to 4.5e-5, order 1.000-1.002 (float32 rounding: MuJoCo's Euler
+with its state rounded to float32 after every step shows the same floor), and the
+coupled model's E0 4.2e-3 to 7.9e-3, order 0.55 to 0.74: the rod's float32 resolution,
+an absolute noise (E0 falls as 1 / amplitude: 6.2e-4 median at 1e-4 m, 6.8e-5 at
+1e-3 m with order 1.00), within which a 1e-3 tip-mass error was hidden.  At the float32
+setting (``benchmarks/refinement_power.py --float32 --engines physx``, seeds 1-20):
+single model E0 median 1.4e-5, upper end at most 8.2e-5, order 0.995-1.004; coupled E0
+median 3.2e-5, upper end at most 1.1e-4, order 1.000-1.002: 0 false failures in 20
+seeds on either; a 1e-3 tip-mass error (``make_fault("mass_ratio", 1e-3)``) gives E0
+6.8e-4 to 1.4e-3 (single) and 5.2e-4 to 1.0e-3 (coupled), flagged at every seed, and
+so is a 1e-4 error of the tip mass, the pendulum length or gravity on both models.
 
 The state passed in at each chunk is set on the articulations (float32 joint
 positions and velocities; time and the rest of the ``mjSTATE_FULLPHYSICS`` vector
@@ -133,12 +136,12 @@ from cipcore.engine import Capabilities
 #: rigid body's cart reaction m/M, as the float64 engines); about twice the largest.
 TRAJECTORY_TOLERANCE = 3e-2
 
-#: The refinement floor (largest upper end of E0's interval) that separates this float32
-#: engine from a 1e-3 tip-mass error, per model (module docstring; seeds 1-10): single,
-#: correct at most 3.1e-5, faulty at least 1.2e-4; coupled, correct up to 2.2e-2 (the
-#: rod's float32 noise, which no tip-mass error of 1e-3 rises above).  The shared check
-#: (:data:`validation.checks.refinement.FLOOR`, 1e-6) is not relaxed by it.
-REFINEMENT_FLOOR_FLOAT32 = {"single": 5e-5, "coupled": 5e-2}
+#: The refinement floors (largest upper end of E0's interval) this float32 engine is held
+#: to, per model: the float32 setting's
+#: (``validation.checks.refinement.FLOAT32_SETTINGS``, where refinement_check takes them
+#: from; module docstring): correct at most 8.2e-5 (single) and 1.1e-4 (coupled) over
+#: seeds 1-20, a 1e-3 tip-mass error at least 1.2e-3 and 8.8e-4.
+REFINEMENT_FLOOR_FLOAT32 = {"single": 1.2e-4, "coupled": 1.6e-4}
 
 #: The largest magnitude of a state coordinate that the step accepts (MuJoCo's
 #: ``mjMAXVAL``), and PhysX's velocity limits of links and joints (off in effect):

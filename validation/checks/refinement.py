@@ -48,6 +48,52 @@ most 3.4e-8, the interval's upper end at most 3.1e-7 (0 false failures in 20 see
 model and integrator); RK4 3e-10, the reference's own floor (central differences of
 ``qacc``).  A relative error of 1e-5 in the tip mass, gravity or tip damping, or 1e-6
 in the cart damping or pendulum length, is flagged (E0 1e-6 to 9e-6).
+
+Float32 engines (``capabilities.precision == "float32"``) are judged at a setting of
+their own (:data:`FLOAT32_SETTINGS`, :func:`precision_setting`; the float64 setting
+above is unchanged).  Float32 rounds the state by about 6e-8 of itself every step: over
+the 8000 steps at h/8 the trajectories carry a rounding noise of about 1e-6 of
+themselves, which the two Richardson steps amplify about threefold, so that E0 is noise,
+3.1e-6 to 1.4e-5 at 1e-5 m and 1 s (PhysX through SAPIEN; MuJoCo's Euler with its
+state rounded to float32 after every step, :func:`float32_stand_in`: 2.9e-6 to 7.9e-6),
+its interval up to 4.5e-5, and a 1e-4 error of the tip mass (E0 1e-5 to 2e-5) is inside it.  A
+float32 engine whose rod is computed from world positions (PhysX's distance joint near
+x = +-0.5 m, resolution 6e-8 m) adds an absolute noise: the coupled model's E0 is 4e-3
+to 8e-3 at 1e-5 m, falling as 1 / amplitude (6e-4 at 1e-4 m, 7e-5 at 1e-3 m).  The
+linearisation's own error (the exact solution is of the linearised model) grows as
+amplitude^2: float64 MuJoCo's median E0 at 1 s is 1e-8 at 1e-5 and 1e-4 m, 9e-7 (single) and
+7e-7 (coupled) at 1e-3 m, 8e-6 and 6e-6 at 3e-3 m, 9e-5 and 7e-5 at 1e-2 m.  The
+float32 setting trades these three (measured with ``benchmarks/refinement_power.py
+--float32``, seeds 1-20, 4 force sequences each):
+
+* window 4 s instead of 1 s: a model error's share of the trajectory grows with the time
+  the unstable pendulum amplifies it, faster than the rounding noise (a 1e-4 tip-mass
+  error: E0 1e-5 to 2e-5 at 1 s, 6e-5 to 1.4e-4 at 4 s; the correct engines' E0 median
+  5e-6 at 1 s, 1.4e-5 at 4 s); the linearisation's error at 4 s is 2 to 4 times that
+  at 1 s (float64 MuJoCo at 1e-3 m: E0 at most 6.7e-6 single, 2.7e-6 coupled);
+* single model: amplitude 1e-3 m, where float32 rounding is relative (the same E0 at
+  1e-5 to 1e-3 m) and the linearisation's error a sixth of it, and an engine's absolute
+  rounding a hundredth of its size at 1e-5 m; floor 1.2e-4: the correct engines' upper
+  end at most 8.2e-5 (PhysX: E0 median 1.4e-5, at most 2.6e-5, order 0.995-1.004;
+  the stand-in 7.7e-5), 0 false failures in 20 seeds each;
+* coupled model: amplitude 3e-3 m, where the rod's float32 noise (falling as
+  1 / amplitude) and the linearisation's error (growing as amplitude^2) are least
+  together (PhysX's upper end at most 2.9e-4 at 1e-3 m, 1.1e-4 at 3e-3 m, 6.3e-4 at
+  1e-2 m); floor 1.6e-4: the correct engines' upper end at most 1.1e-4 (PhysX: E0 median
+  3.2e-5, at most 3.8e-5, order 1.000-1.002; the stand-in 7.0e-5), 0 false failures in
+  20 seeds each.
+
+Flagged at every one of 20 seeds at the float32 setting (sizes 1e-3, 3e-4, 1e-4 tried):
+single model, PhysX and the stand-in, a relative error of 1e-4 in the tip mass, the
+pendulum length, gravity or the tip damping (the tip damping's least upper end 1.3e-4,
+at the floor's edge) and 3e-4 in the cart damping (whose E0 is 0.9 of its size, float32
+or not: 1e-4 is flagged at 14 and 15 of 20 seeds); coupled model, PhysX: 1e-4 in the
+tip mass, the length or gravity, 3e-4 in the tip and the cart damping (1e-4 flagged
+at 14 and 9 of 20 seeds); the stand-in: 1e-4 in the length, 3e-4 in the tip mass,
+gravity, the tip and the cart damping (1e-4 flagged at 15, 15, 2 and 0 of 20 seeds).
+A 1e-3 error of any of them is flagged at every seed on both models (least upper end
+7.6e-4).
+
 A one-step delay of the engine's control is itself a consistent first-order
 discretisation of the held force (it converges to the same limit), so this check does
 not see it: the ``delay`` check, which counts the steps between a step in the
@@ -67,6 +113,8 @@ from cipcore.seeds import purpose_rng
 
 __all__ = [
     "AMPLITUDE",
+    "FLOAT32_SETTINGS",
+    "FLOAT64_SETTING",
     "FLOOR",
     "F_MAX",
     "F_MIN",
@@ -75,9 +123,13 @@ __all__ = [
     "ORDER_SLACK",
     "UNDECLARED_ORDER",
     "WINDOW",
+    "PrecisionSetting",
     "Refinement",
     "extrapolate",
+    "float32_stand_in",
+    "float32_state",
     "open_loop_forces",
+    "precision_setting",
     "refine",
 ]
 
@@ -257,6 +309,7 @@ class RefinementSetting:
         the chunk protocol's bound).
     levels : time steps dt, dt/2, ..., dt/2^(levels-1).
     window : simulated time, s.
+    amplitude : the largest balancing error |e| of the response, m.
     """
 
     seed: int
@@ -264,6 +317,7 @@ class RefinementSetting:
     chunk_time: float = CHUNK_TIME
     levels: int = LEVELS
     window: float = WINDOW
+    amplitude: float = AMPLITUDE
 
 
 def refine(
@@ -298,7 +352,7 @@ def refine(
         ctrl[..., motors[i]] = f[..., i]
     x0 = np.zeros((n_realizations, nq + nv))
     exact = zoh_response(a, b, x0, ctrl, h)[..., :nq] @ obs.T
-    scale = AMPLITUDE / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
+    scale = setting.amplitude / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
     exact *= scale
     ctrl *= scale
     data = mujoco.MjData(model)
@@ -334,6 +388,47 @@ def refine(
         e0_interval=(max(0.0, e0 - width), e0 + width),
         per_realization=tuple(float(x) for x in per),
     )  # fmt: skip
+
+
+def float32_state(base: type) -> type:
+    """``base`` (a :class:`cip.runner.RolloutBackend` class) with its state rounded to
+    float32 after every step: a float32 engine's rounding on a float64 stepper.
+
+    Each step is one call of ``base`` (one step of every realisation), then the whole
+    ``mjSTATE_FULLPHYSICS`` vector (time, positions, velocities, ...) is rounded to the
+    nearest float32 and handed back as float64, the state the next step starts from and
+    the one recorded.  MuJoCo's ``Euler`` so wrapped is the float32 stand-in of the
+    module docstring (:func:`float32_stand_in`): it is a correct engine, held in float32.
+    """
+
+    class Float32State(base):
+        def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+            s = np.asarray(state, dtype=np.float32).astype(np.float64)
+            one = np.empty((ctrl.shape[0], 1, out.shape[2]))
+            for k in range(ctrl.shape[1]):
+                super().__call__(s, np.ascontiguousarray(ctrl[:, k : k + 1]), one)
+                s = one[:, 0].astype(np.float32).astype(np.float64)
+                out[:, k] = s
+
+    Float32State.__name__ = Float32State.__qualname__ = f"Float32{base.__name__}"
+    return Float32State
+
+
+def float32_stand_in():
+    """MuJoCo's ``Euler`` with its state rounded to float32 after every step
+    (:func:`float32_state`), as an engine of the refinement tier: float32, no exact twin,
+    its own stepper (the file's ``Euler``: order 1), the file's soft rod.  Not in the
+    registry: the engine the float32 setting is measured and tested with."""
+    from dataclasses import replace
+
+    from cip.engines.rigid_body import MUJOCO
+    from cip.runner import MujocoRollout
+
+    backend = float32_state(MujocoRollout)
+    caps = replace(MUJOCO.capabilities, precision="float32", twin=None, linearize=False)
+    return replace(MUJOCO, name="mujoco-float32", capabilities=caps, backend=lambda: backend,
+                   integrators=(), linearizer=None,
+                   notes="MuJoCo Euler, state rounded to float32 after every step")  # fmt: skip
 
 
 # ------------------------------------------------------------ the tier and the check
@@ -403,6 +498,59 @@ def undeclared_tier(distance: float, tolerance: float) -> tuple[str, str]:
     )
 
 
+@dataclass(frozen=True)
+class PrecisionSetting:
+    """What the refinement check of an engine of one precision runs and is held to.
+
+    Attributes
+    ----------
+    amplitude : the largest balancing error |e| of the response, m.
+    window : simulated time, s.
+    floor : the largest upper end of E0's interval that passes (relative L2).
+    why : one sentence: the measured floor it leaves margin over (module docstring).
+    """
+
+    amplitude: float
+    window: float
+    floor: float
+    why: str
+
+
+#: the float64 setting, every model (module docstring): the response at 1e-5 m, the
+#: floor 1e-6
+FLOAT64_SETTING = PrecisionSetting(
+    AMPLITUDE, WINDOW, FLOOR, "float64: the correct engines' E0 with margin"
+)
+
+#: the float32 setting per model (module docstring, "Float32 engines"): the amplitude
+#: where float32 rounding and the linearisation's own error are least, the floor above
+#: the largest upper end of E0's interval of the correct float32 engines at 20 seeds
+FLOAT32_SETTINGS: dict[str, PrecisionSetting] = {
+    "single": PrecisionSetting(
+        1e-3, 4.0, 1.2e-4,
+        "at 1e-3 m float32 rounding is relative and the linearisation's error a sixth of "
+        "it; 4 s lets a model error grow beyond the rounding; correct float32 engines' upper "
+        "end at most 8.2e-5 over 20 seeds",
+    ),
+    "coupled": PrecisionSetting(
+        3e-3, 4.0, 1.6e-4,
+        "at 3e-3 m the rod's float32 noise (as 1 / amplitude) and the linearisation's "
+        "error (as amplitude^2) are least together; 4 s lets a model error grow beyond "
+        "them; correct float32 engines' upper end at most 1.1e-4 over 20 seeds",
+    ),
+}  # fmt: skip
+
+
+def precision_setting(model: str, precision: str) -> PrecisionSetting:
+    """The setting the refinement check of ``model`` judges an engine of ``precision``
+    ("float64" or "float32", :attr:`cipcore.engine.Capabilities.precision`) at."""
+    if precision != "float32":
+        return FLOAT64_SETTING
+    if model not in FLOAT32_SETTINGS:
+        raise ValueError(f"no float32 refinement setting for model {model!r}")
+    return FLOAT32_SETTINGS[model]
+
+
 def refinement_check(
     model: str, m: mujoco.MjModel, engine, seed: int, *, backend=None, threads: int | None = None
 ):
@@ -410,43 +558,60 @@ def refinement_check(
 
     ``backend``: the engine's :class:`cip.runner.RolloutBackend` class to run (a fault
     wraps it; default the engine's own).  Forces from ``seed``'s ``refinement`` stream.
+    The engine's precision picks the setting (:func:`precision_setting`): a float64
+    engine's check is the module's :data:`AMPLITUDE` and :data:`FLOOR`; a float32
+    engine's says in its values (``setting``, ``amplitude_m``, ``window_s``), tolerance
+    and details that the float32 setting judged it, and why.
     """
     from validation.checks.stats import FAIL, PASS, Check
 
     caps = engine.capabilities
     integrator = m_integrator(m) if len(getattr(engine, "integrators", ())) > 1 else None
     rod = "soft" if caps.rod == "soft" else "rigid"
-    r = refine(m, backend or engine.rollout(), rod=rod, setting=RefinementSetting(seed),
+    ps = precision_setting(model, caps.precision)
+    float32 = ps is not FLOAT64_SETTING
+    setting = RefinementSetting(seed, window=ps.window, amplitude=ps.amplitude)
+    r = refine(m, backend or engine.rollout(), rod=rod, setting=setting,
                threads=max(1, min(threads or 1, REALIZATIONS)))  # fmt: skip
     need = least_order(caps, integrator)
     p_decl = declared_order(caps, integrator)
-    ok = r.passes(FLOOR, need)
+    ok = r.passes(ps.floor, need)
+    values = {
+        "e0": r.e0,
+        "e0_interval": list(r.e0_interval),
+        "floor": ps.floor,
+        "order": r.order,
+        "order_coarse": r.order_coarse,
+        "least_order": need,
+        "declared_order": p_decl,
+        "steps_s": list(r.steps),
+        "errors": list(r.errors),
+    }
+    why = "(the correct engines' E0 with margin)"
+    details = (
+        f"open loop, {REALIZATIONS} band-limited forces ({N_MODES} sinusoids in "
+        f"{F_MIN:g}-{F_MAX:g} Hz) held per {m.opt.timestep:g} s, {ps.window:g} s, largest "
+        f"|e| {ps.amplitude:g} m, rod {rod}, seed {seed}"
+    )
+    if float32:
+        values.update(setting="float32", amplitude_m=ps.amplitude, window_s=ps.window)
+        why = f"(the float32 setting of the {model} model: {ps.why})"
+        details += (
+            f"; float32 setting (the engine's precision is float32), not the float64 one "
+            f"(floor {FLOOR:g} at {AMPLITUDE:g} m, {WINDOW:g} s)"
+        )
     return Check(
         name=f"refinement.{model}",
         status=PASS if ok else FAIL,
-        values={
-            "e0": r.e0,
-            "e0_interval": list(r.e0_interval),
-            "floor": FLOOR,
-            "order": r.order,
-            "order_coarse": r.order_coarse,
-            "least_order": need,
-            "declared_order": p_decl,
-            "steps_s": list(r.steps),
-            "errors": list(r.errors),
-        },
+        values=values,
         tolerance=(
             f"E0, the relative L2 distance of the dt -> 0 limit (Richardson on the "
             f"trajectories at dt = h .. h/{2 ** (len(r.steps) - 1)}) to the exact "
-            f"zero-order-hold solution, <= {FLOOR:g} (the correct engines' E0 with margin), "
+            f"zero-order-hold solution, <= {ps.floor:g} {why}, "
             f"and the observed order >= {need:g} "
             + ("(declared order less 0.3)" if p_decl is not None else "(no order declared)")
         ),
-        details=(
-            f"open loop, {REALIZATIONS} band-limited forces ({N_MODES} sinusoids in "
-            f"{F_MIN:g}-{F_MAX:g} Hz) held per {m.opt.timestep:g} s, {WINDOW:g} s, largest "
-            f"|e| {AMPLITUDE:g} m, rod {rod}, seed {seed}"
-        ),
+        details=details,
     )
 
 
