@@ -112,8 +112,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, generalized_forces, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry, generalized_forces
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.names import cart_body, cart_joint, hinge_joint, pendulum_body
 from cipcore.engine import Capabilities
 
@@ -331,7 +332,7 @@ def _probe(c: GenesisCIP, m: mujoco.MjModel) -> float:
     return dist
 
 
-class GenesisRollout:
+class GenesisRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP with Genesis (module docstring).
 
     Parameters
@@ -350,22 +351,18 @@ class GenesisRollout:
         _genesis()
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = self.geometry = geometry_from_mujoco(model)
-        self.dt = float(model.opt.timestep)
+        super().__init__(model)
+        g = self.geometry
         c = self.cip = build_scene(g, max(1, int(n_realizations)))
         self.probe_distance = verify_scene(c, model)
         self.nc = g.n_controllers
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
-        self.mj_q = 1 + np.r_[np.array(g.qpos_x), np.array(g.qpos_theta)]
-        self.mj_v = 1 + model.nq + np.r_[np.array(g.dof_x), np.array(g.dof_theta)]
+        self.mj_q = np.r_[self.mj_x, self.mj_theta]
+        self.mj_v = np.r_[self.mj_xdot, self.mj_omega]
         self.gs_q = np.r_[c.q_x, c.q_theta]
         self.gs_v = np.r_[c.v_x, c.v_theta]
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
         self.x0 = np.array(g.cart_x0)
         self.length = np.array(g.pendulum_length)
         self.rod = g.rod_length
-        self._failed = 0
 
     def close(self) -> None:
         """Release the Genesis scene (the refinement check builds one per time step)."""
@@ -458,9 +455,7 @@ class GenesisRollout:
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         R, n = ctrl.shape[:2]
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         c = self.cip
         q = np.zeros((R, c.entity.n_qs))
         v = np.zeros((R, c.entity.n_dofs))
@@ -474,15 +469,9 @@ class GenesisRollout:
             block = out[r0:r1]
             block[:, :, self.mj_q] = qs[:, :, self.gs_q]
             block[:, :, self.mj_v] = vs[:, :, self.gs_v]
-            for j in np.nonzero(bad < n)[0]:  # NaN from there: the drivers read it as divergence
-                self._failed += 1
-                block[j, bad[j] :, 1:] = np.nan
+            for j in np.nonzero(bad < n)[0]:  # beyond MAXVAL: NaN from there
+                self.diverged(out, r0 + j, bad[j])
         out[~ok, :, 1:] = np.nan
-
-    def warnings(self) -> int:
-        """Realisations whose state or force left :data:`MAXVAL` (then NaN to the end of
-        the chunk)."""
-        return self._failed
 
 
 ENGINE = RigidBodyEngine(

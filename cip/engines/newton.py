@@ -120,8 +120,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, generalized_forces, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry, generalized_forces
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.names import cart_joint, hinge_joint
 from cipcore.engine import Capabilities
 
@@ -213,7 +214,7 @@ def build_model(g: CIPGeometry, n_worlds: int) -> NewtonCIP:
     return NewtonCIP(model=model, geometry=g, n_worlds=n_worlds)
 
 
-class NewtonRollout:
+class NewtonRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP with Newton's Featherstone
     solver on warp's CPU device (module docstring).
 
@@ -228,19 +229,16 @@ class NewtonRollout:
     """
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
+        super().__init__(model)
         self.newton = _newton()
-        g = self.geometry = geometry_from_mujoco(model)
-        self.dt = float(model.opt.timestep)
+        g = self.geometry
         self.nc = g.n_controllers
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...; per controller (x, theta)
-        self.mj_q = 1 + np.stack([np.array(g.qpos_x), np.array(g.qpos_theta)], axis=1)
-        self.mj_v = 1 + model.nq + np.stack([np.array(g.dof_x), np.array(g.dof_theta)], axis=1)
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
+        # per controller (x, theta) in mjSTATE_FULLPHYSICS
+        self.mj_q = np.stack([self.mj_x, self.mj_theta], axis=1)
+        self.mj_v = np.stack([self.mj_xdot, self.mj_omega], axis=1)
         self.length = np.array(g.pendulum_length)
         self.x0 = np.array(g.cart_x0)
         self.rod = g.rod_length
-        self._failed = 0
         self._batch(n_realizations)
 
     def _batch(self, n_worlds: int) -> None:
@@ -286,9 +284,7 @@ class NewtonRollout:
         if R != self.cip.n_worlds:
             self._batch(R)
         g, dt, shape = self.geometry, self.dt, (R, self.nc, 2)
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         # (R, C, 2) views of warp's CPU arrays: (x, theta) and their rates per controller
         (q0, v0), (q1, v1) = ((s.joint_q.numpy().reshape(shape), s.joint_qd.numpy().reshape(shape))
                               for s in self.states)  # fmt: skip
@@ -319,11 +315,6 @@ class NewtonRollout:
             live[:, self.mj_v] = np.where(alive[:, None, None], v1, live[:, self.mj_v])
             s0, s1, q0, v0, q1, v1 = s1, s0, q1, v1, q0, v0
         self.states = [s0, s1]
-
-    def warnings(self) -> int:
-        """Realisations whose state left :data:`MAXVAL` or became non-finite (then NaN to
-        the end of the chunk)."""
-        return self._failed
 
 
 ENGINE = RigidBodyEngine(

@@ -125,8 +125,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cip.engines.drake_plant import CIPGeometry, generalized_forces, geometry_from_mujoco
+from cip.engines.drake_plant import CIPGeometry, generalized_forces
 from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rollout import ModelRollout
 from cip.names import cart_body, cart_joint, hinge_joint, pendulum_body
 from cipcore.engine import Capabilities
 
@@ -289,7 +290,7 @@ def build_scene(g: CIPGeometry, n_realizations: int, solver: Solver = SOLVER) ->
     return PhysxCIP(scene=scene, system=system, articulations=arts, rods=rods, geometry=g)
 
 
-class PhysxRollout:
+class PhysxRollout(ModelRollout):
     """:class:`cip.runner.RolloutBackend` stepping the CIP with PhysX (module docstring).
 
     Parameters
@@ -311,20 +312,11 @@ class PhysxRollout:
         _sapien()
 
     def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int) -> None:
-        g = self.geometry = geometry_from_mujoco(model)
-        self.dt = float(model.opt.timestep)
+        super().__init__(model)
+        g = self.geometry
         self.cip = build_scene(g, n_realizations, self.solver)
         self.n_controllers = g.n_controllers
-        # mjSTATE_FULLPHYSICS: time, qpos (nq), qvel (nv), ...
-        self.columns = (
-            1 + np.array(g.qpos_x),
-            1 + np.array(g.qpos_theta),
-            1 + model.nq + np.array(g.dof_x),
-            1 + model.nq + np.array(g.dof_theta),
-        )
-        self.motor = np.array(g.motor_id)
-        self.gear = np.array(g.motor_gear)
-        self._failed = 0
+        self.columns = (self.mj_x, self.mj_theta, self.mj_xdot, self.mj_omega)
         #: the joint positions and velocities (R, C, 2) the copies hold (last chunk's end)
         self._held: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -355,9 +347,7 @@ class PhysxRollout:
         C = self.n_controllers
         arts = self._ensure(R)
         cx, ct, cv, cw = self.columns
-        out[...] = state[:, None, :]
-        out[:, :, 0] = state[:, None, 0] + self.dt * np.arange(1, n + 1)
-        u = ctrl[:, :, self.motor] * self.gear  # (R, n, C) cart forces, N
+        u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         # the state as PhysX holds it: float32 joint positions (x, theta), velocities
         q = np.stack([state[:, cx], state[:, ct]], axis=-1).astype(np.float32)
         dq = np.stack([state[:, cv], state[:, cw]], axis=-1).astype(np.float32)
@@ -397,10 +387,6 @@ class PhysxRollout:
             out[:, :, cols] = traj[..., j].transpose(1, 0, 2)
         for r in np.flatnonzero(stop < n):
             out[r, stop[r] :, 1:] = np.nan
-
-    def warnings(self) -> int:
-        """Realisations stopped beyond :data:`MAXVAL` (then NaN to the end of the chunk)."""
-        return self._failed
 
 
 ENGINE = RigidBodyEngine(
