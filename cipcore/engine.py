@@ -272,6 +272,25 @@ class EngineMethods:
         """lambda1 (eq. (7)) of ``scenario`` with the grouped options."""
         raise NotImplementedError
 
+    def make_runner(self, model: BalanceModel, params: BalanceParams, n_realizations: int,
+                    amplitude: float, physical: Any) -> ChunkRunner:  # fmt: skip
+        """The :class:`ChunkRunner` of :meth:`runner` for the resolved ``model``."""
+        raise NotImplementedError
+
+    def runner(
+        self,
+        model: BalanceModel | str,
+        params: BalanceParams,
+        n_realizations: int,
+        amplitude: float,
+        *,
+        physical: Any = None,
+    ) -> ChunkRunner:
+        """See :meth:`Engine.runner`: ``n_realizations`` of ``model`` from the initial
+        balancing error ``amplitude`` (m); ``physical``: the rigid body's parameters
+        (default: those that map onto ``params``)."""
+        return self.make_runner(get_model(model), params, n_realizations, amplitude, physical)
+
     simulate = _engine_method("simulate", 1, "Engine.simulate")
     lyapunov = _engine_method("lyapunov", 8, "Engine.lyapunov")
 

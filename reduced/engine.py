@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from cipcore.engine import Capabilities, EngineMethods, check_options
-from cipcore.models import BalanceModel, get_model
+from cipcore.models import BalanceModel
 from cipcore.params import BalanceParams
 from cipcore.results import LyapunovResult
 from cipcore.scenario import Scenario, flat_options
@@ -66,18 +66,11 @@ class ReducedEngine(EngineMethods):
     def unavailable(self) -> str | None:
         return None
 
-    def runner(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        n_realizations: int,
-        amplitude: float,
-        *,
-        physical: Any = None,
-    ) -> ReducedChunks:
+    def make_runner(self, model: BalanceModel, params: BalanceParams, n_realizations: int,
+                    amplitude: float, physical: Any) -> ReducedChunks:  # fmt: skip
         if physical is not None:
             check_options(self.name, "runner", {"physical": physical}, ())
-        return self.chunks(get_model(model), params, n_realizations, check_amplitude(amplitude))
+        return self.chunks(model, params, n_realizations, check_amplitude(amplitude))
 
     def accepted(self, method: str) -> frozenset[str]:
         if method == "simulate":

@@ -6,6 +6,7 @@ from __future__ import annotations
 import builtins
 import fnmatch
 import io
+import itertools
 import json
 import os
 import re
@@ -232,3 +233,67 @@ def write_fault_site(directory: Path) -> Path:
         "    install_write_fault_from_env()\n"
     )
     return directory
+
+
+def forced(model: str, n_realizations: int, n_steps: int, seed: int = 3):
+    """The compiled shipped ``model``, its upright state (R, S) with every pendulum tilted
+    0.01 rad alike (the rod's length kept; the nonlinear terms take part) and 0.05 x the
+    refinement check's band-limited open-loop motor forces (R, n, nu) from ``seed``."""
+    import mujoco
+    import numpy as np
+
+    from cip.engines.drake_plant import geometry_from_mujoco
+    from validation.checks.agreement import model_file
+    from validation.checks.refinement import observable, open_loop_forces
+
+    m = model_file(model)
+    full = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    s = np.empty(mujoco.mj_stateSize(m, full))
+    mujoco.mj_getState(m, d, s, full)
+    state = np.tile(s, (n_realizations, 1))
+    state[:, 1 + np.array(geometry_from_mujoco(m).qpos_theta)] = 0.01
+    motors, _ = observable(m)
+    ctrl = np.zeros((n_realizations, n_steps, m.nu))
+    ctrl[..., motors] = 0.05 * open_loop_forces(
+        n_realizations, n_steps, len(motors), m.opt.timestep, seed
+    )
+    return m, state, ctrl
+
+
+def roll(backend_cls, m, state, ctrl, chunks: int = 2, n_envs: int | None = None):
+    """The states after each step of ``backend_cls`` (a :class:`cip.runner.RolloutBackend`
+    class) over ``ctrl`` in ``chunks`` calls, each continuing from the last state of the one
+    before; ``n_envs`` realisations a backend (default all).  Asserts no warnings."""
+    import numpy as np
+
+    n = ctrl.shape[1]
+    out = np.empty((*ctrl.shape[:2], state.shape[1]))
+    backend = backend_cls(m, n_envs or state.shape[0], 1)
+    edges = [round(k * n / chunks) for k in range(chunks + 1)]
+    try:
+        for a, b in itertools.pairwise(edges):
+            backend(state if a == 0 else out[:, a - 1], ctrl[:, a:b], out[:, a:b])
+        assert backend.warnings() == 0
+    finally:
+        close = getattr(backend, "close", None)
+        if close is not None:
+            close()
+    return out
+
+
+def tip_stretch(m, out):
+    """The rod's stretch (m) of the coupled model's states ``out`` (..., S): the distance of
+    the two tips, computed in float64 from the joint coordinates, less the rod's length."""
+    import numpy as np
+
+    from cip.engines.drake_plant import geometry_from_mujoco
+
+    g = geometry_from_mujoco(m)
+    q = out[..., 1 : 1 + m.nq]
+    theta = [q[..., j] for j in g.qpos_theta]
+    tx = [g.cart_x0[i] + q[..., g.qpos_x[i]] + g.pendulum_length[i] * np.sin(theta[i])
+          for i in range(2)]  # fmt: skip
+    tz = [g.pendulum_length[i] * np.cos(theta[i]) for i in range(2)]
+    return np.hypot(tx[0] - tx[1], tz[0] - tz[1]) - g.rod_length

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import signal
@@ -180,36 +181,52 @@ def test_page_is_served(tmp_path):
     assert 'width="1200" height="600"' in page and "WebSocket" in js and status == 404
 
 
-def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
-    """Issue 13: a killed server keeps all but (at most) the last second of samples."""
+@contextlib.contextmanager
+def _server_process(tmp_path, *options: str):
+    """``experiment serve`` in a process of its own (port 0, countdown 0, ``options``):
+    yields the process and the address it prints; killed at the end if still running."""
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
     proc = subprocess.Popen(
         [sys.executable, "-m", "validation.cli.main", "experiment", "serve", "--port", "0",
-         "--out", str(tmp_path), "--trial-duration", "600", "--countdown", "0"],
+         "--out", str(tmp_path), "--countdown", "0", *options],
         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
     )  # fmt: skip
     try:
-        url = proc.stdout.readline().split("open ")[1].strip()
+        yield proc, proc.stdout.readline().split("open ")[1].strip()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+async def _start_trial(s, url: str, mode: str, seats: list):
+    """Connect to the server at ``url``, create a trial of ``mode`` with ``seats`` and start
+    it; the websocket."""
+    token = urllib.parse.parse_qs(urllib.parse.urlparse(url).query)["token"][0]
+    ws = await s.ws_connect(url.split("?")[0] + "ws")
+    await ws.send_json({"type": "create", "token": token, "mode": mode, "trial": 1,
+                        "seats": seats})  # fmt: skip
+    await ws.send_json({"type": "ready"})
+    return ws
+
+
+def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
+    """Issue 13: a killed server keeps all but (at most) the last second of samples."""
+    with _server_process(tmp_path, "--trial-duration", "600") as (proc, url):
 
         async def go():
-            token = urllib.parse.parse_qs(urllib.parse.urlparse(url).query)["token"][0]
-            async with aiohttp.ClientSession() as s, s.ws_connect(url.split("?")[0] + "ws") as ws:
-                await ws.send_json({"type": "create", "token": token, "mode": "coupled",
-                                    "trial": 1, "seats": [_bot("A", 1), _bot("B", 2)]})  # fmt: skip
-                await ws.send_json({"type": "ready"})
+            async with aiohttp.ClientSession() as s:
+                ws = await _start_trial(s, url, "coupled", [_bot("A", 1), _bot("B", 2)])
                 last = -1
                 t_end = time.monotonic() + 3.0
                 while time.monotonic() < t_end:
                     d = await until(ws, "frame")
                     last = d["k"]
                 os.kill(proc.pid, signal.SIGKILL)
+                await ws.close()
                 return last
 
         last_seen = _run(go())
         proc.wait(timeout=10)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     (path,) = find_trials(tmp_path)
     assert path.suffix == ".jsonl"  # never finalised
     tr = load_trial(path)
@@ -222,31 +239,20 @@ def test_sigkill_mid_trial_loses_at_most_the_last_second(tmp_path):
 
 
 def test_sigterm_finalises_the_running_trial(tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "validation.cli.main", "experiment", "serve", "--port", "0",
-         "--out", str(tmp_path), "--countdown", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
-    )  # fmt: skip
-    try:
-        url = proc.stdout.readline().split("open ")[1].strip()
+    with _server_process(tmp_path) as (proc, url):
 
         async def go():
-            token = urllib.parse.parse_qs(urllib.parse.urlparse(url).query)["token"][0]
-            async with aiohttp.ClientSession() as s, s.ws_connect(url.split("?")[0] + "ws") as ws:
-                await ws.send_json({"type": "create", "token": token, "mode": "single",
-                                    "trial": 1, "seats": [_bot("A", 1)]})  # fmt: skip
-                await ws.send_json({"type": "ready"})
+            async with aiohttp.ClientSession() as s:
+                ws = await _start_trial(s, url, "single", [_bot("A", 1)])
                 for _ in range(25):
                     await until(ws, "frame")
                 proc.send_signal(signal.SIGTERM)
-                return await until(ws, "end")
+                end = await until(ws, "end")
+                await ws.close()
+                return end
 
         end = _run(go())
         assert proc.wait(timeout=20) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
     assert end["reason"] == "server_stop"
     tr = load_trial(tmp_path / end["file"])
     assert tr.attrs["end"]["reason"] == "server_stop" and tr.time.size == end["samples"] >= 25

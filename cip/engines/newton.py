@@ -73,11 +73,10 @@ both models; E0 2.9e-6 to 8.0e-6 on the single model (the interval's upper end a
 engines); ``refinement_check`` therefore judges a float32 engine at its float32
 setting (:data:`validation.checks.refinement.FLOAT32_SETTINGS`: |e| 1e-3 / 3e-3 m over
 4 s, floors 1.2e-4 / 1.6e-4), where Newton passes at seeds 1-5 (upper end at most
-6.2e-5 single, 6.4e-5 coupled, order 0.995-1.003).  :data:`REFINEMENT_FLOOR_FLOAT32`
-is the floor of the engine's own tests at the float64 setting, with a
-margin of 1.8 over the largest upper end; a 1e-3 error of the tip mass
-(``make_fault("mass_ratio", 1e-3)``, seeds 1-3) moves E0 to 6.8e-5 to 1.5e-4 (single,
-upper ends 1.2e-4 to 2.0e-4) and 9.4e-5 to 1.2e-4 (coupled, 2.0e-4 to 2.2e-4), beyond it.
+6.2e-5 single, 6.4e-5 coupled, order 0.995-1.003).  At the float64 setting a 1e-3
+error of the tip mass (``make_fault("mass_ratio", 1e-3)``, seeds 1-3) moves E0 to
+6.8e-5 to 1.5e-4 (single, upper ends 1.2e-4 to 2.0e-4) and 9.4e-5 to 1.2e-4
+(coupled, 2.0e-4 to 2.2e-4), beyond the correct engine's largest upper end (2.8e-5).
 
 Solvers: only Featherstone can represent this model.  Newton's
 ``SolverSemiImplicit`` holds its joints with penalty springs of one stiffness and
@@ -132,13 +131,6 @@ from cipcore.engine import Capabilities
 #: 3.5e-3 over 10 s), every control one step late gives at least 6.2e-3; float32
 #: rounding adds about 1e-6.
 TRAJECTORY_TOLERANCE = 5e-3
-
-#: The refinement floor this engine's float32 state allows (relative L2 of the
-#: extrapolated limit, the interval's upper end): 1.8 times the largest upper end
-#: measured over seeds 1-10 on either model, 2.8e-5, and below the upper ends of a 1e-3
-#: tip-mass error, 1.2e-4 and more (module docstring).  cipval's shared
-#: :data:`validation.checks.refinement.FLOOR` (1e-6) is a float64 floor.
-REFINEMENT_FLOOR_FLOAT32 = 5e-5
 
 #: The largest magnitude of a joint coordinate or velocity the step accepts (MuJoCo's
 #: ``mjMAXVAL``); beyond it, or not finite, a realisation ends (NaN from that step).

@@ -165,20 +165,11 @@ class RigidBodyEngine(EngineMethods):
             integrator = own if own in INTEGRATOR_NAMES.values() else "Euler"
         return {**mapping.twin_terms(), "integrator": integrator}
 
-    def runner(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        n_realizations: int,
-        amplitude: float,
-        *,
-        physical: CIPParams | None = None,
-    ) -> RigidBodyChunks:
+    def make_runner(self, model: BalanceModel, params: BalanceParams, n_realizations: int,
+                    amplitude: float, physical: CIPParams | None) -> RigidBodyChunks:  # fmt: skip
         physical = physical or CIPParams.from_reduced(params)
-        r = CIPRunner(
-            get_model(model).name, params, physical, n_realizations, amplitude,
-            threads=1, backend=self._backend(),
-        )  # fmt: skip
+        r = CIPRunner(model.name, params, physical, n_realizations, amplitude, threads=1,
+                      backend=self._backend())  # fmt: skip
         return RigidBodyChunks(r)
 
     def accepted(self, method: str) -> frozenset[str]:

@@ -49,7 +49,7 @@ from cip.engines.rigid_body import RigidBodyEngine
 from cip.model import CIPParams, build
 from cipcore.engine import Capabilities
 from cipcore.gpu import declared_device, warp_device, warp_unavailable
-from cipcore.models import BalanceModel, get_model
+from cipcore.models import BalanceModel
 from cipcore.params import BalanceParams, ParameterError
 
 
@@ -131,17 +131,10 @@ class WarpChunks:
 class WarpEngine(RigidBodyEngine):
     """MuJoCo Warp: :meth:`runner` keeps the control on the device (see the module docstring)."""
 
-    def runner(
-        self,
-        model: BalanceModel | str,
-        params: BalanceParams,
-        n_realizations: int,
-        amplitude: float,
-        *,
-        physical: CIPParams | None = None,
-    ) -> WarpChunks:
+    def make_runner(self, model: BalanceModel, params: BalanceParams, n_realizations: int,
+                    amplitude: float, physical: CIPParams | None) -> WarpChunks:  # fmt: skip
         physical = physical or CIPParams.from_reduced(params)
-        return WarpChunks(get_model(model), params, n_realizations, amplitude, physical)
+        return WarpChunks(model, params, n_realizations, amplitude, physical)
 
 
 def _capabilities() -> Capabilities:
