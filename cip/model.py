@@ -61,7 +61,25 @@ INTEGRATOR_ENUMS = {
     "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
     "RK4": mujoco.mjtIntegrator.mjINT_RK4,
 }
+#: The pendulum lengths (m) the rigid body is built with: L = g/alpha from the reduced
+#: model's alpha (:meth:`CIPParams.from_reduced`).  10 um to 100 km: MuJoCo refuses a
+#: pendulum geom much shorter ("fromto points too close"), and the paper's is 0.45 m.
+PENDULUM_LENGTH_RANGE = (1e-5, 1e5)
 MODEL_DIR = Path(__file__).resolve().parent.parent / "models"
+
+
+def _mujoco_warning(text: str) -> None:
+    """MuJoCo's warnings (``mju_warning``: e.g. "Nan, Inf or huge value in QACC") as one
+    stderr line each, instead of MuJoCo's default, which also appends them to
+    ``MUJOCO_LOG.TXT`` in the working directory: a command writes nothing outside its
+    ``--out``.  Installed when this module is imported (every MuJoCo model cipval
+    steps is built or read here)."""
+    import sys
+
+    print(f"mujoco warning: {text.strip()}", file=sys.stderr)
+
+
+mujoco.set_mju_user_warning(_mujoco_warning)
 
 
 @dataclass(frozen=True)
@@ -121,9 +139,12 @@ class CIPParams:
         timestep dt.  Extra keyword arguments set other physical parameters.
         """
         check_positive("mass_ratio", mass_ratio)
-        if params.alpha <= 0:
+        lo, hi = PENDULUM_LENGTH_RANGE
+        if not gravity / hi <= params.alpha <= gravity / lo:
             raise ParameterError(
-                f"alpha must be > 0 for a pendulum (L = g/alpha), got {params.alpha}"
+                f"alpha must be in [{gravity / hi:.3g}, {gravity / lo:.3g}] 1/s^2 for the rigid "
+                f"body (its pendulum length L = g/alpha in [{lo:g}, {hi:g}] m), "
+                f"got {params.alpha}"
             )
         return cls(
             gravity=gravity,

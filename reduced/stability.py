@@ -34,7 +34,7 @@ import numpy as np
 import scipy.linalg
 
 from cipcore.models import get_model
-from cipcore.params import BalanceParams
+from cipcore.params import BalanceParams, ParameterError
 
 
 def delay_system(model: str, params: BalanceParams) -> tuple[np.ndarray, np.ndarray]:
@@ -119,7 +119,13 @@ def characteristic_roots(
     eig = eig[np.argsort(-eig.real)]
     cands = eig[eig.imag >= -1e-9][: 4 * n_roots]
     polished = [_newton(a0, a1, tau, s) for s in cands]
-    roots = np.array([s for s in polished if s is not None])
+    roots = np.array([s for s in polished if s is not None and np.isfinite(s)])
+    if roots.size == 0:  # e.g. beta = 1e300: the generator's eigenvalues overflow float64
+        raise ParameterError(
+            f"no characteristic root of the {model} model converged at alpha {params.alpha:g}, "
+            f"beta {params.beta:g}, gamma {params.gamma:g} (1/s^2, 1/s^2, 1/s), tau "
+            f"{params.tau:g} s: the gains are beyond what float64 resolves"
+        )
     roots = roots.real + 1j * np.abs(roots.imag)
     roots = _unique(roots[np.argsort(-roots.real)])
     return Roots(roots[:n_roots])

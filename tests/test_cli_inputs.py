@@ -135,7 +135,21 @@ CASES = [
         ["--mjcf", "XML parse error", "Line number=3"],
     ),
     ("sweep-plot {nc} --metric rms --x beta --out {d}/p.png", ["dataset", "damaged"]),
+    # the long fuzz run: L = g/alpha too short for MuJoCo's geom (a traceback), or too long
+    ("linearize --alpha 1e300", ["alpha", "[9.81e-05, 9.81e+05] 1/s^2", "pendulum length"]),
+    ("linearize --alpha 1e-300", ["alpha", "[9.81e-05, 9.81e+05] 1/s^2"]),
+    ("stability --beta 1e300", ["no characteristic root", "beta 1e+300"]),
 ]
+
+
+def test_mujoco_warnings_are_one_stderr_line_not_a_log_file(tmp_path, monkeypatch, capfd):
+    """The long fuzz run: ``linearize --gamma 1e300`` made MuJoCo append its warning to
+    MUJOCO_LOG.TXT in the working directory; it is a stderr line instead (cip.model)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["linearize", "--gamma", "1e300", "--json"]) == 0
+    err = capfd.readouterr().err
+    assert "mujoco warning: Nan, Inf or huge value" in err
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.fixture

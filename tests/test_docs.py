@@ -339,3 +339,35 @@ def test_site_builds_without_warnings(tmp_path):
                           timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-4000:] + proc.stderr[-4000:]
     assert (tmp_path / "site" / "index.html").exists()
+
+
+# ------------------------------------------------------------------ generated engine tables
+def _engine_run_hook():
+    spec = importlib.util.spec_from_file_location("engine_run", REPO / "docs/hooks/engine_run.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_engine_tables_are_rendered_from_a_stored_run():
+    """Each ``engines-run`` marker names a stored results.json of ``cip-validate engines``;
+    the hook renders the command's own report from it (every engine of the run a row, its
+    verdict and the run's command in the text), and no page holds a hand-copied table of
+    the same header instead."""
+    import json
+
+    hook = _engine_run_hook()
+    pages = sorted((REPO / "docs").glob("*.md"))
+    marked = [p for p in pages if hook._MARKER.search(p.read_text())]
+    assert marked, "no page renders the engine tables from a run"
+    for page in marked:
+        for m in hook._MARKER.finditer(page.read_text()):
+            results = json.loads((REPO / "docs" / m.group(1)).read_text())
+            text = hook.render(results)
+            assert results["run"]["command"].startswith("cip-validate engines")
+            assert f"`{results['run']['command']}`" in text
+            for row in results["engines"]:
+                assert f"| {row['engine']} | {row['status']} |" in text
+    header = "| engine | verdict | family | precision | integrator | rod | tier"
+    for page in pages:
+        assert header not in page.read_text(), f"{page.name}: a hand-copied engine table"

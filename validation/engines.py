@@ -280,6 +280,23 @@ def _selftest_cell(st: dict | None) -> str:
     return "not run" if st is None else f"{st['flagged']} of {st['applicable']}"
 
 
+def _run_line(run: dict[str, Any]) -> str:
+    """One sentence: the command that made the results, when, how long, at what load."""
+    loads = [("at the start", run.get("load_start")), ("at the end", run.get("load_end"))]
+    said = [f"{'/'.join(f'{x:.1f}' for x in v)} {when}" for when, v in loads if v]
+    text = f"Made by `{run['command']}` on {run['started_utc']} UTC ({run.get('cpus')} CPUs"
+    if said:
+        text += ", load " + " and ".join(said)
+    if "wall_s" in run:
+        text += f"; {run['wall_s'] / 60:.1f} min wall"
+    if run.get("commit"):
+        text += f"; commit {run['commit']}"
+    versions = run.get("versions") or {}
+    if versions:
+        text += "; " + ", ".join(f"{k} {v}" for k, v in versions.items())
+    return text + ")."
+
+
 def markdown(results: dict[str, Any]) -> str:
     """The cross-engine table (one row per engine) and each engine's failed checks."""
     lines = [
@@ -301,6 +318,8 @@ def markdown(results: dict[str, Any]) -> str:
         "| ratio to MuJoCo CPU |",
         "|" + "---|" * 19,
     ]
+    if results.get("run"):
+        lines[3:3] = ["", _run_line(results["run"])]
     for r in results["engines"]:
         if r["status"] == "skipped":
             lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 16)

@@ -170,6 +170,7 @@ def add_threads_arg(p: argparse.ArgumentParser, *, suite: bool = False) -> None:
 
 
 def add_force_arg(p: argparse.ArgumentParser) -> None:
+    """--force: run past :data:`MAX_WORK` (:func:`check_work`'s bound)."""
     p.add_argument("--force", action="store_true",
                    help=f"run even when the estimated work exceeds {MAX_WORK:.0e} "
                    "realisation-steps")  # fmt: skip
@@ -292,19 +293,24 @@ def check_work(
     dt: float,
     *,
     runs: int = 1,
+    fixed: float = 0.0,
     force: bool = False,
 ) -> float:
     """Estimated work in realisation-steps; a usage error above :data:`MAX_WORK` unless forced.
 
-    ``runs`` multiplies (e.g. gains of a critical-gain search, grid points of a sweep).
+    The estimate is ``realizations x runs x duration / dt + fixed``: ``runs`` multiplies
+    (e.g. gains of a critical-gain search, grid points of a sweep, the simulations of a
+    selftest), ``fixed`` adds the realisation-steps that do not scale with ``option``
+    (e.g. the selftest's refinement checks); the message names both.
     """
     whole_steps(option, duration, dt)  # before any work: the engines step whole dt
-    work = float(realizations) * runs * duration / dt
+    work = float(realizations) * runs * duration / dt + fixed
     if work > MAX_WORK and not force:
+        plus = f" + {fixed:.3g} fixed" if fixed else ""
         raise ParameterError(
             f"{option}: estimated work {work:.3g} realisation-steps "
-            f"({realizations} realisations x {runs} run(s) x {duration:g} s / dt {dt:g} s) "
-            f"exceeds {MAX_WORK:.0e}; lower it or pass --force"
+            f"({realizations} realisations x {runs} run(s) x {duration:g} s / dt {dt:g} s"
+            f"{plus}) exceeds {MAX_WORK:.0e}; lower it or pass --force"
         )
     return work
 

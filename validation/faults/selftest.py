@@ -10,6 +10,10 @@ one.  ``--power`` also bisects each fault type's size down to the smallest that
 is still flagged (a power curve: below it the fault hides in the twin's floor).
 The file-level and shared-code paths (:mod:`validation.faults.selftest_paths`) add
 their rows and power curves.
+
+Before any of it runs, the command estimates its work (:func:`selftest_work`) and
+the memory its recordings take, and refuses, in one line naming ``--realizations``,
+beyond :data:`validation.cli.args.MAX_WORK` (unless ``--force``) or the recording cap.
 """
 
 from __future__ import annotations
@@ -18,12 +22,18 @@ import argparse
 import math
 import time
 
-from cipcore.models import MODEL_NAMES
-from cipcore.params import ParameterError
+from cipcore.models import MODEL_NAMES, get_model
+from cipcore.params import PAPER, ParameterError
 from cipcore.scenario import EngineTarget
-from validation.checks.agreement import instrument_checks, rigid_engine
+from validation.checks.agreement import TWIN_WINDOW, instrument_checks, rigid_engine
 from validation.checks.stats import FAIL
-from validation.cli.args import add_json_arg, nonnegative_int, positive_int
+from validation.cli.args import (
+    add_force_arg,
+    add_json_arg,
+    check_work,
+    nonnegative_int,
+    positive_int,
+)
 from validation.cli.ci_options import add_ci_options, junit_file, run_environment
 from validation.cli.engine_options import add_engine_options, check_engine_options
 from validation.cli.main import add_command, command
@@ -89,11 +99,15 @@ def run_selftest(
     return clean, rows
 
 
+#: bisection steps of :func:`smallest_detectable` (``--power``)
+POWER_ITERATIONS = 12
+
+
 def smallest_detectable(
     kind: str,
     seed: int,
     n_realizations: int,
-    iterations: int = 12,
+    iterations: int = POWER_ITERATIONS,
     engine: str = "mujoco",
     integrator: str | None = None,
 ) -> dict:
@@ -135,6 +149,116 @@ def smallest_detectable(
     }
 
 
+# ------------------------------------------------------------ work estimate
+#: the fields each simulation of :func:`validation.checks.agreement.instrument_checks`
+#: records (the engine's and its twin's), for the memory check
+RECORDED_FIELDS = ("balancing_error", "tip_position")
+#: simulations of ``n_realizations`` x ``TWIN_WINDOW`` per model of an instrument_checks
+#: call: the engine and its exact twin
+SIMULATIONS_PER_MODEL = 2
+
+
+def model_runs(kinds: list[str] | None, engine: str, power: bool) -> list[tuple[str, str]]:
+    """(engine, model) of every model that :func:`instrument_checks` simulates in a selftest.
+
+    One entry per model per :func:`instrument_checks` call of :func:`run_selftest` and
+    the power curves: the unmodified model, the equivalent rewrites and the file faults
+    (on the default engine, as :mod:`validation.faults.file` runs them), the catalogued
+    faults applicable to ``engine`` and, with ``power``, every bisection step of
+    :func:`smallest_detectable` (at most 2 + :data:`POWER_ITERATIONS` calls per fault
+    with a smaller size).  The
+    shared-code faults and the file faults' power curves simulate nothing here (anchors,
+    the specification only).  An upper bound: a model whose file fails
+    ``model.declared``, or that the engine refuses, is not simulated.
+    """
+    from validation.faults.file import EQUIVALENT, FILE_CATALOGUE, make_file_fault
+
+    default = EngineTarget().engine
+    eng = rigid_engine(engine)
+    runs = [(engine, m) for m in MODEL_NAMES]  # the unmodified model
+    runs += [(default, m) for _ in EQUIVALENT for m in MODEL_NAMES]
+    for kind, size in CATALOGUE:
+        if kinds and kind not in kinds:
+            continue
+        fault = make_fault(kind, size)
+        if fault.not_applicable(eng) is not None:
+            continue
+        runs += [(engine, m) for m in fault.models]
+        spec = FAULT_TYPES[kind]
+        if power and not (spec.get("fixed") or spec.get("integer")):
+            runs += [(engine, m) for m in fault.models] * (2 + POWER_ITERATIONS)
+    for kind, size in FILE_CATALOGUE:
+        if not kinds or kind in kinds:
+            runs += [(default, m) for m in make_file_fault(kind, size).models]
+    return runs
+
+
+def fixed_steps(engine: str, model: str) -> float:
+    """Realisation-steps of one model's direct checks that do not scale with the
+    realisations: the refinement check (:data:`~validation.checks.refinement.REALIZATIONS`
+    force sequences over its window at h, h/2, ..., h / 2**(LEVELS - 1)) and the delay
+    probe (2 runs of 3 delays, one realisation)."""
+    from validation.checks import refinement as rf
+
+    dt = PAPER["dt"]
+    window = rf.precision_setting(model, rigid_engine(engine).capabilities.precision).window
+    delay = round(PAPER["tau"] / dt)
+    return rf.REALIZATIONS * round(window / dt) * (2**rf.LEVELS - 1) + 2 * 3 * delay
+
+
+def selftest_work(
+    n_realizations: int,
+    kinds: list[str] | None = None,
+    engine: str = "mujoco",
+    power: bool = False,
+    force: bool = False,
+) -> float:
+    """The selftest's estimated work (realisation-steps), checked before anything runs.
+
+    ``n_realizations x runs x TWIN_WINDOW / dt + fixed``, where ``runs`` is
+    :data:`SIMULATIONS_PER_MODEL` per entry of :func:`model_runs` and ``fixed`` the sum
+    of :func:`fixed_steps` over them.  Beyond :data:`validation.cli.args.MAX_WORK`
+    (unless ``force``), or when one simulation's recording exceeds its memory cap, a
+    :class:`ParameterError` naming ``--realizations``.
+    """
+    runs = model_runs(kinds, engine, power)
+    each = {r: fixed_steps(*r) for r in set(runs)}
+    fixed = float(sum(each[r] for r in runs))
+    work = check_work("--realizations", n_realizations, TWIN_WINDOW, PAPER["dt"],
+                      runs=SIMULATIONS_PER_MODEL * len(runs), fixed=fixed, force=force)  # fmt: skip
+    check_recording(n_realizations, list(dict.fromkeys(m for _, m in runs)))
+    return work
+
+
+def check_recording(n_realizations: int, models: list[str]) -> None:
+    """Refuse, naming ``--realizations``, a count whose recording (one simulation of
+    :data:`RECORDED_FIELDS` over ``TWIN_WINDOW``) exceeds the recording memory cap.
+
+    The model with the most controllers is checked first: the count the message
+    offers (at most ...) then holds for every model of ``models``.
+    """
+    import numpy as np
+
+    from cipcore.scenario import Recording
+    from cipcore.schema import plan_recording
+
+    rec = Recording(fields=RECORDED_FIELDS)
+    n_steps = round(TWIN_WINDOW / PAPER["dt"])  # as instrument_checks counts them
+    for model in sorted(models, key=lambda m: -get_model(m).n_controllers):
+        nc = get_model(model).n_controllers
+        try:
+            plan_recording(n_steps, n_realizations, nc, rec)
+        except ParameterError as exc:
+            per = -(-n_steps // rec.decimate) * nc * len(RECORDED_FIELDS)
+            per *= np.dtype(rec.dtype).itemsize  # bytes per realisation
+            what = str(exc).split("; raise")[0]
+            raise ParameterError(
+                f"--realizations: the {model} model's {what} (each of its simulations, "
+                f"{TWIN_WINDOW:g} s at dt {PAPER['dt']:g} s); at most "
+                f"{rec.max_bytes // per} realisations"
+            ) from None
+
+
 def format_table(clean: list[str], rows: list[dict]) -> str:
     out = ["unmodified model: " + ("pass" if not clean else "FAIL: " + ", ".join(clean)), ""]
     out.append(f"{'fault':<24} {'size':>10} {'unit':<9} {'flagged':<8} by")
@@ -170,6 +294,7 @@ def cmd_selftest(a: argparse.Namespace) -> int:
     for k in kinds or []:
         if k not in known:
             raise ParameterError(f"--faults: unknown fault {k!r}; known: {', '.join(known)}")
+    selftest_work(a.realizations, kinds, a.engine, a.power, a.force)  # before any work
     t = time.perf_counter()
     clean, rows = run_selftest(a.seed, a.realizations, kinds, a.engine, a.integrator)
     rows_run = [r for r in rows if r["flagged"] is not None]
@@ -229,6 +354,7 @@ def register_selftest(sub: argparse._SubParsersAction) -> None:
                    help="only these fault types (default: all: "
                    + ", ".join(FAULT_TYPES) + ")")  # fmt: skip
     p.add_argument("--power", action="store_true", help="bisect each type's smallest flagged size")
+    add_force_arg(p)
     add_json_arg(p)
     add_engine_options(p)
     add_ci_options(p, verbose=False)

@@ -26,6 +26,27 @@ from validation.cli.main import add_command, command
 EXIT_OK, EXIT_FAIL = 0, 1
 
 
+def run_record(started: dict | None = None) -> dict:
+    """How a run was made, for its report: the command line, the UTC start, the load
+    average (1, 5, 15 min) at start and, given ``started`` (this function's value at the
+    start), the wall time and the load at the end, with the versions that computed it."""
+    import os
+    import shlex
+    import time
+    from datetime import UTC, datetime
+
+    load = list(os.getloadavg())
+    if started is None:
+        return {"command": shlex.join(["cip-validate", *sys.argv[1:]]),
+                "started_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M"),
+                "load_start": load, "t0": time.monotonic(), "cpus": os.cpu_count()}  # fmt: skip
+    from validation.regression.versions import package_versions
+
+    rec = {k: v for k, v in started.items() if k != "t0"}
+    return {**rec, "wall_s": round(time.monotonic() - started["t0"], 1), "load_end": load,
+            "versions": package_versions()}  # fmt: skip
+
+
 @command(
     "Run every registered engine (or --engines) through the checks of `cip-validate run` (its "
     "exact twin, the delay, the rod, the declared model, the agreement with the reduced reference "
@@ -50,11 +71,13 @@ def cmd_engines(a: argparse.Namespace) -> int:
     junit = junit_file(a)
     quiet = a.json or a.quiet
     say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
+    started = run_record()
     try:
         # an engine's import banner (warp's) must not corrupt the JSON on stdout
         with stdout_to_stderr() if a.json else contextlib.nullcontext():
             results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
                                       integrator=a.integrator, selftest=a.selftest)  # fmt: skip
+        results["run"] = run_record(started)
     except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
         from validation.cli.exitcodes import EXIT_CRASH
 
