@@ -88,10 +88,9 @@ import mujoco
 import numpy as np
 
 from cip.engines.drake_plant import CIPGeometry
-from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rigid_body import RigidBodyEngine, semi_implicit_rigid
 from cip.engines.rollout import ModelRollout
 from cip.names import cart_joint, hinge_joint
-from cipcore.engine import Capabilities
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m:
 #: the value of the other semi-implicit Euler engines with a rigid rod (Bullet,
@@ -180,9 +179,8 @@ def _block(n: list[float], jac: list[list[float]], minv: list[list[float]], sign
 
 
 class DartRollout(ModelRollout):
-    """:class:`cip.runner.RolloutBackend` stepping the CIP with DART (module docstring):
-    the realisations one after another, in a Python loop holding the GIL (``threads``
-    ignored; :class:`~cip.engines.rollout.ModelRollout`)."""
+    """:class:`cip.runner.RolloutBackend` stepping the CIP with DART (module docstring), one
+    realisation after another in a loop that holds the GIL (see ``ModelRollout``)."""
 
     modules = ("dartpy",)
 
@@ -192,8 +190,9 @@ class DartRollout(ModelRollout):
         self.cip = build_model(g)
         self.nc = g.n_controllers
         # per controller (x, theta) in mjSTATE_FULLPHYSICS
-        self.mj_q = np.stack([self.mj_x, self.mj_theta], axis=1)
-        self.mj_v = np.stack([self.mj_xdot, self.mj_omega], axis=1)
+        # (C, 2) per controller: (cart, hinge) position and velocity columns
+        self.mj_qc = np.stack([self.mj_x, self.mj_theta], axis=1)
+        self.mj_vc = np.stack([self.mj_xdot, self.mj_omega], axis=1)
         self.c_tip = list(g.tip_damping)
         self.c_cart = list(g.cart_damping)
         self.rod = g.rod_length
@@ -247,7 +246,7 @@ class DartRollout(ModelRollout):
         u = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         skels = self.cip.skeletons
         for r in range(R):
-            q0, v0 = state[r, self.mj_q], state[r, self.mj_v]  # (C, 2) each
+            q0, v0 = state[r, self.mj_qc], state[r, self.mj_vc]  # (C, 2) each
             if not (np.isfinite(q0).all() and np.isfinite(v0).all()):
                 out[r, :, 1:] = np.nan
                 continue
@@ -271,21 +270,15 @@ class DartRollout(ModelRollout):
                     break
             if rows:
                 qv = np.array(rows)  # (k, C, 4)
-                out[r, : len(rows)][:, self.mj_q] = qv[..., :2]
-                out[r, : len(rows)][:, self.mj_v] = qv[..., 2:]
+                out[r, : len(rows)][:, self.mj_qc] = qv[..., :2]
+                out[r, : len(rows)][:, self.mj_vc] = qv[..., 2:]
             if bad is not None:  # a state or force beyond MAXVAL: NaN from there
                 self.diverged(out, r, bad)
 
 
 ENGINE = RigidBodyEngine(
     name="dart",
-    capabilities=Capabilities(
-        family="DART",
-        trajectory_tolerance=TRAJECTORY_TOLERANCE,
-        integrator="semi-implicit Euler (DART)",
-        order=1.0,
-        rod="rigid",
-    ),
+    capabilities=semi_implicit_rigid("DART", "DART", TRAJECTORY_TOLERANCE),
     backend=lambda: DartRollout,
     requires=("dartpy",),
     integrators=(),

@@ -113,10 +113,9 @@ import mujoco
 import numpy as np
 
 from cip.engines.drake_plant import CIPGeometry, generalized_forces
-from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rigid_body import RigidBodyEngine, semi_implicit_rigid
 from cip.engines.rollout import ModelRollout
 from cip.names import cart_body, cart_joint, hinge_joint, pendulum_body
-from cipcore.engine import Capabilities
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m:
 #: the value of the other semi-implicit Euler engines with a rigid rod (Bullet,
@@ -356,8 +355,6 @@ class GenesisRollout(ModelRollout):
         c = self.cip = build_scene(g, max(1, int(n_realizations)))
         self.probe_distance = verify_scene(c, model)
         self.nc = g.n_controllers
-        self.mj_q = np.r_[self.mj_x, self.mj_theta]
-        self.mj_v = np.r_[self.mj_xdot, self.mj_omega]
         self.gs_q = np.r_[c.q_x, c.q_theta]
         self.gs_v = np.r_[c.v_x, c.v_theta]
         self.x0 = np.array(g.cart_x0)
@@ -476,13 +473,7 @@ class GenesisRollout(ModelRollout):
 
 ENGINE = RigidBodyEngine(
     name="genesis",
-    capabilities=Capabilities(
-        family="Genesis",
-        trajectory_tolerance=TRAJECTORY_TOLERANCE,
-        integrator="semi-implicit Euler (Genesis)",
-        order=1.0,
-        rod="rigid",
-    ),
+    capabilities=semi_implicit_rigid("Genesis", "Genesis", TRAJECTORY_TOLERANCE),
     backend=lambda: GenesisRollout,
     requires=("genesis",),
     max_threads=1,

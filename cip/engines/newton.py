@@ -120,10 +120,9 @@ import mujoco
 import numpy as np
 
 from cip.engines.drake_plant import CIPGeometry, generalized_forces
-from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rigid_body import RigidBodyEngine, semi_implicit_rigid
 from cip.engines.rollout import ModelRollout
 from cip.names import cart_joint, hinge_joint
-from cipcore.engine import Capabilities
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at small
 #: amplitude: the value of the other semi-implicit Euler engines with a rigid rod
@@ -226,8 +225,9 @@ class NewtonRollout(ModelRollout):
         g = self.geometry
         self.nc = g.n_controllers
         # per controller (x, theta) in mjSTATE_FULLPHYSICS
-        self.mj_q = np.stack([self.mj_x, self.mj_theta], axis=1)
-        self.mj_v = np.stack([self.mj_xdot, self.mj_omega], axis=1)
+        # (C, 2) per controller: (cart, hinge) position and velocity columns
+        self.mj_qc = np.stack([self.mj_x, self.mj_theta], axis=1)
+        self.mj_vc = np.stack([self.mj_xdot, self.mj_omega], axis=1)
         self.length = np.array(g.pendulum_length)
         self.x0 = np.array(g.cart_x0)
         self.rod = g.rod_length
@@ -281,7 +281,7 @@ class NewtonRollout(ModelRollout):
         (q0, v0), (q1, v1) = ((s.joint_q.numpy().reshape(shape), s.joint_qd.numpy().reshape(shape))
                               for s in self.states)  # fmt: skip
         joint_f = self.control.joint_f.numpy().reshape(shape)
-        q_in, v_in = state[:, self.mj_q], state[:, self.mj_v]
+        q_in, v_in = state[:, self.mj_qc], state[:, self.mj_vc]
         alive = np.isfinite(q_in).all(axis=(1, 2)) & np.isfinite(v_in).all(axis=(1, 2))
         out[~alive, :, 1:] = np.nan
         q0[:] = np.where(alive[:, None, None], q_in, 0.0)  # a dead world rests
@@ -303,22 +303,16 @@ class NewtonRollout(ModelRollout):
                 alive &= ok
                 q1[ended], v1[ended] = 0.0, 0.0
             live = out[:, k]
-            live[:, self.mj_q] = np.where(alive[:, None, None], q1, live[:, self.mj_q])
-            live[:, self.mj_v] = np.where(alive[:, None, None], v1, live[:, self.mj_v])
+            live[:, self.mj_qc] = np.where(alive[:, None, None], q1, live[:, self.mj_qc])
+            live[:, self.mj_vc] = np.where(alive[:, None, None], v1, live[:, self.mj_vc])
             s0, s1, q0, v0, q1, v1 = s1, s0, q1, v1, q0, v0
         self.states = [s0, s1]
 
 
 ENGINE = RigidBodyEngine(
     name="newton",
-    capabilities=Capabilities(
-        precision="float32",
-        kernels="warp",
-        family="Newton",
-        trajectory_tolerance=TRAJECTORY_TOLERANCE,
-        integrator="semi-implicit Euler (Newton Featherstone)",
-        order=1.0,
-        rod="rigid",
+    capabilities=semi_implicit_rigid(
+        "Newton", "Newton Featherstone", TRAJECTORY_TOLERANCE, precision="float32", kernels="warp"
     ),
     backend=lambda: NewtonRollout,
     requires=("newton", "warp"),

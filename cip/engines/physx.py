@@ -126,10 +126,9 @@ import mujoco
 import numpy as np
 
 from cip.engines.drake_plant import CIPGeometry, generalized_forces
-from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rigid_body import RigidBodyEngine, semi_implicit_rigid
 from cip.engines.rollout import ModelRollout
 from cip.names import cart_body, cart_joint, hinge_joint, pendulum_body
-from cipcore.engine import Capabilities
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m:
 #: the rod's float32 resolution (module docstring) puts the coupled model at 1.0e-2 to
@@ -391,13 +390,11 @@ class PhysxRollout(ModelRollout):
 
 ENGINE = RigidBodyEngine(
     name="physx",
-    capabilities=Capabilities(
+    capabilities=semi_implicit_rigid(
+        "PhysX",
+        "PhysX articulation, PGS",
+        TRAJECTORY_TOLERANCE,
         precision="float32",
-        family="PhysX",
-        trajectory_tolerance=TRAJECTORY_TOLERANCE,
-        integrator="semi-implicit Euler (PhysX articulation, PGS)",
-        order=1.0,
-        rod="rigid",
         solver=SOLVER.describe(),
     ),
     backend=lambda: PhysxRollout,

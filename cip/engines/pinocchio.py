@@ -70,10 +70,9 @@ import mujoco
 import numpy as np
 
 from cip.engines.drake_plant import CIPGeometry
-from cip.engines.rigid_body import RigidBodyEngine
+from cip.engines.rigid_body import RigidBodyEngine, semi_implicit_rigid
 from cip.engines.rollout import ModelRollout
 from cip.names import cart_joint, hinge_joint, tip_site
-from cipcore.engine import Capabilities
 
 #: Relative L2 distance of the balancing error to the reduced model allowed at 1e-6 m:
 #: the value of the other semi-implicit Euler engines with a rigid rod (Bullet): the
@@ -144,9 +143,8 @@ def build_model(g: CIPGeometry) -> PinocchioCIP:
 
 
 class PinocchioRollout(ModelRollout):
-    """:class:`cip.runner.RolloutBackend` stepping the CIP with Pinocchio (module docstring):
-    the realisations one after another, in a Python loop holding the GIL (``threads``
-    ignored; :class:`~cip.engines.rollout.ModelRollout`)."""
+    """:class:`cip.runner.RolloutBackend` stepping the CIP with Pinocchio (module docstring), one
+    realisation after another in a loop that holds the GIL (see ``ModelRollout``)."""
 
     modules = ("pinocchio",)
 
@@ -158,8 +156,6 @@ class PinocchioRollout(ModelRollout):
         self.model = c.model
         self.data = c.model.createData()
         self.nq, self.nv = c.model.nq, c.model.nv
-        self.mj_q = np.r_[self.mj_x, self.mj_theta]
-        self.mj_v = np.r_[self.mj_xdot, self.mj_omega]
         self.pin_q = np.r_[c.q_x, c.q_theta]
         self.pin_v = np.r_[c.v_x, c.v_theta]
         self.c_tip = np.array(g.tip_damping)
@@ -216,13 +212,7 @@ class PinocchioRollout(ModelRollout):
 
 ENGINE = RigidBodyEngine(
     name="pinocchio",
-    capabilities=Capabilities(
-        family="Pinocchio",
-        trajectory_tolerance=TRAJECTORY_TOLERANCE,
-        integrator="semi-implicit Euler (ABA)",
-        order=1.0,
-        rod="rigid",
-    ),
+    capabilities=semi_implicit_rigid("Pinocchio", "ABA", TRAJECTORY_TOLERANCE),
     backend=lambda: PinocchioRollout,
     requires=("pinocchio",),
     integrators=(),

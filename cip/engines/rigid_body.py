@@ -80,6 +80,20 @@ class RigidBodyChunks:
         return self.runner.fields(sel)
 
 
+def semi_implicit_rigid(
+    family: str, stepper: str, trajectory_tolerance: float, **caps: Any
+) -> Capabilities:
+    """The capabilities of an engine that steps semi-implicit Euler (order 1) of its own
+    (``stepper``: whose, e.g. ``"DART"``) with a rigid rod and no exact twin of cipval's:
+    the refinement tier judges it (:mod:`validation.checks.refinement`).
+    ``trajectory_tolerance``: relative L2 distance to the reduced model allowed at small
+    amplitude; ``caps``: further :class:`cipcore.engine.Capabilities` fields (precision,
+    kernels, solver)."""
+    return Capabilities(family=family, trajectory_tolerance=trajectory_tolerance,
+                        integrator=f"semi-implicit Euler ({stepper})", order=1.0, rod="rigid",
+                        **caps)  # fmt: skip
+
+
 @dataclass
 class RigidBodyEngine(EngineMethods):
     """A rigid-body CIP engine: a name, its capabilities and its rollout backend.

@@ -41,6 +41,8 @@ class ModelRollout:
     mj_x, mj_theta, mj_xdot, mj_omega : indices of the cart positions (m), hinge angles
         (rad), cart velocities (m/s) and hinge rates (rad/s), one per controller, in
         the ``mjSTATE_FULLPHYSICS`` vector (time first, then qpos, then qvel).
+    mj_q, mj_v : the cart positions then the hinge angles, and the cart velocities then
+        the hinge rates: ``mj_x, mj_theta`` and ``mj_xdot, mj_omega`` in one index array.
     """
 
     #: the engine's Python modules, imported by :meth:`preload`
@@ -62,6 +64,8 @@ class ModelRollout:
         self.mj_theta = 1 + np.array(g.qpos_theta)
         self.mj_xdot = 1 + model.nq + np.array(g.dof_x)
         self.mj_omega = 1 + model.nq + np.array(g.dof_theta)
+        self.mj_q = np.r_[self.mj_x, self.mj_theta]
+        self.mj_v = np.r_[self.mj_xdot, self.mj_omega]
         self._failed = 0
 
     def begin(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> np.ndarray:

@@ -194,8 +194,6 @@ class SimbodyRollout(ModelRollout):
         g = self.geometry
         self.osim_model = _Model(g)
         self.nc = g.n_controllers
-        self.mj_q = np.r_[self.mj_x, self.mj_theta]
-        self.mj_u = np.r_[self.mj_xdot, self.mj_omega]
         self.managers: list = [None] * n_realizations
         self.steps = [0] * n_realizations
         self.last: list[np.ndarray | None] = [None] * n_realizations
@@ -211,11 +209,11 @@ class SimbodyRollout(ModelRollout):
                 continue
             if self.last[r] is None or not np.array_equal(self.last[r], state[r]):
                 q, u = np.empty(2 * nc), np.empty(2 * nc)
-                q[qi], u[qi] = state[r, self.mj_q], state[r, self.mj_u]
+                q[qi], u[qi] = state[r, self.mj_q], state[r, self.mj_v]
                 self.managers[r] = om.manager(q, u, dt, 0.0)
                 self.steps[r] = 0
             mgr = self.managers[r]
-            x, v = state[r, self.mj_q].copy(), state[r, self.mj_u].copy()  # carts, then hinges
+            x, v = state[r, self.mj_q].copy(), state[r, self.mj_v].copy()  # carts, then hinges
             for k in range(n):
                 f_cart, t_hinge = generalized_forces(
                     self.geometry, x[nc:], v[:nc], v[nc:], u_ctrl[r, k]
@@ -232,7 +230,7 @@ class SimbodyRollout(ModelRollout):
                     break
                 x, v = s.getQ().to_numpy()[qi], s.getU().to_numpy()[qi]
                 out[r, k, self.mj_q] = x
-                out[r, k, self.mj_u] = v
+                out[r, k, self.mj_v] = v
             self.last[r] = out[r, -1].copy()
 
 
