@@ -441,8 +441,10 @@ def values_for(action: argparse.Action, places: dict[str, str]) -> st.SearchStra
 
 
 def expected_valid(action: argparse.Action, text: str) -> bool | None:
-    if text == "--" and action.nargs != 0:  # argparse's end of options, never a value
+    if text == "--" and action.nargs != 0 and action.option_strings:  # end of options
         return False
+    if not action.option_strings and text.startswith("-"):
+        return None  # a positional that looks like an option: argparse's reading, undeclared
     d = domain_of(action)
     if d is not None and d.pair:  # two numbers, each in the domain, LOW < HIGH
         words = text.split(" ")
