@@ -117,6 +117,15 @@ def check_amplitude(amplitude: float) -> float:
     return a
 
 
+def recording_bytes(
+    n_steps: int, n_realizations: int, nc: int, recording: Any, n_fields: int
+) -> int:
+    """Bytes that ``n_fields`` fields of ``recording`` (every ``decimate``-th of ``n_steps``
+    steps, its ``dtype``) take for ``n_realizations`` realisations of ``nc`` controllers."""
+    n_samples = -(-n_steps // recording.decimate)
+    return n_samples * n_realizations * nc * n_fields * np.dtype(recording.dtype).itemsize
+
+
 def plan_recording(
     n_steps: int,
     n_realizations: int,
@@ -132,12 +141,12 @@ def plan_recording(
     """
     decimate = check_count("decimate", recording.decimate)
     fields = allowed if recording.fields is None else tuple(recording.fields)
-    dtype, max_bytes = recording.dtype, recording.max_bytes
+    max_bytes = recording.max_bytes
     for f in fields:
         if f not in allowed:
             raise ParameterError(f"fields: unknown field {f!r}; allowed: {', '.join(allowed)}")
     n_samples = -(-n_steps // decimate)
-    need = n_samples * n_realizations * nc * len(fields) * np.dtype(dtype).itemsize
+    need = recording_bytes(n_steps, n_realizations, nc, recording, len(fields))
     if need > max_bytes:
         raise ParameterError(
             f"recording {len(fields)} field(s) x {n_realizations} realisations x {n_samples} "

@@ -311,6 +311,7 @@ def markdown(results: dict[str, Any]) -> str:
         "zero-order-hold solution (validation.checks.refinement: E0, the relative distance of "
         "the dt -> 0 limit, within the floor; the observed order at least the declared one).",
         "",
+        *([_run_line(results["run"]), ""] if results.get("run") else []),
         "| engine | verdict | family | precision | integrator | rod | tier (single/coupled) "
         "| refinement E0 single / coupled (floor) | observed order | twin distance single "
         "| twin distance coupled | twin tolerance | rod stretch (vs twin or /e) | delay (steps) "
@@ -318,8 +319,6 @@ def markdown(results: dict[str, Any]) -> str:
         "| ratio to MuJoCo CPU |",
         "|" + "---|" * 19,
     ]
-    if results.get("run"):
-        lines[3:3] = ["", _run_line(results["run"])]
     for r in results["engines"]:
         if r["status"] == "skipped":
             lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 16)

@@ -237,26 +237,24 @@ def check_recording(n_realizations: int, models: list[str]) -> None:
     The model with the most controllers is checked first: the count the message
     offers (at most ...) then holds for every model of ``models``.
     """
-    import numpy as np
-
     from cipcore.scenario import Recording
-    from cipcore.schema import plan_recording
+    from cipcore.schema import recording_bytes
 
     rec = Recording(fields=RECORDED_FIELDS)
     n_steps = round(TWIN_WINDOW / PAPER["dt"])  # as instrument_checks counts them
+    n_samples = -(-n_steps // rec.decimate)
     for model in sorted(models, key=lambda m: -get_model(m).n_controllers):
-        nc = get_model(model).n_controllers
-        try:
-            plan_recording(n_steps, n_realizations, nc, rec)
-        except ParameterError as exc:
-            per = -(-n_steps // rec.decimate) * nc * len(RECORDED_FIELDS)
-            per *= np.dtype(rec.dtype).itemsize  # bytes per realisation
-            what = str(exc).split("; raise")[0]
+        per = recording_bytes(n_steps, 1, get_model(model).n_controllers, rec,
+                              len(RECORDED_FIELDS))  # bytes per realisation  # fmt: skip
+        if n_realizations * per > rec.max_bytes:
             raise ParameterError(
-                f"--realizations: the {model} model's {what} (each of its simulations, "
+                f"--realizations: the {model} model's recording {len(RECORDED_FIELDS)} "
+                f"field(s) x {n_realizations} realisations x {n_samples} samples needs "
+                f"{n_realizations * per / 2**30:.2f} GiB > max_bytes "
+                f"{rec.max_bytes / 2**30:.2f} GiB (each of its simulations, "
                 f"{TWIN_WINDOW:g} s at dt {PAPER['dt']:g} s); at most "
                 f"{rec.max_bytes // per} realisations"
-            ) from None
+            )
 
 
 def format_table(clean: list[str], rows: list[dict]) -> str:

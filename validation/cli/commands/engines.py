@@ -29,7 +29,7 @@ EXIT_OK, EXIT_FAIL = 0, 1
 def run_record(started: dict | None = None) -> dict:
     """How a run was made, for its report: the command line, the UTC start, the load
     average (1, 5, 15 min) at start and, given ``started`` (this function's value at the
-    start), the wall time and the load at the end, with the versions that computed it."""
+    start), the wall time and the load at the end."""
     import os
     import shlex
     import time
@@ -40,11 +40,8 @@ def run_record(started: dict | None = None) -> dict:
         return {"command": shlex.join(["cip-validate", *sys.argv[1:]]),
                 "started_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M"),
                 "load_start": load, "t0": time.monotonic(), "cpus": os.cpu_count()}  # fmt: skip
-    from validation.regression.versions import package_versions
-
     rec = {k: v for k, v in started.items() if k != "t0"}
-    return {**rec, "wall_s": round(time.monotonic() - started["t0"], 1), "load_end": load,
-            "versions": package_versions()}  # fmt: skip
+    return {**rec, "wall_s": round(time.monotonic() - started["t0"], 1), "load_end": load}
 
 
 @command(
@@ -77,7 +74,8 @@ def cmd_engines(a: argparse.Namespace) -> int:
         with stdout_to_stderr() if a.json else contextlib.nullcontext():
             results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
                                       integrator=a.integrator, selftest=a.selftest)  # fmt: skip
-        results["run"] = run_record(started)
+        env = run_environment()  # versions, platform, fingerprint: computed once
+        results["run"] = {**run_record(started), "versions": env["versions"]}
     except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
         from validation.cli.exitcodes import EXIT_CRASH
 
@@ -95,7 +93,7 @@ def cmd_engines(a: argparse.Namespace) -> int:
         # the engine's own twin and rod tolerances are in its row; the run's checks in
         # each row's "checks" carry theirs
         tolerances = {"linearization_residual": cross.LINEARIZATION_TOLERANCE}
-        doc = {"cipval_engines": 1, **results, "tolerances": tolerances, **run_environment()}
+        doc = {"cipval_engines": 1, **results, "tolerances": tolerances, **env}
         print(json.dumps(jsonable(doc)))
     else:
         for r in results["engines"]:
