@@ -118,7 +118,8 @@ def error_step(
 def renormalise(y: np.ndarray, hist: np.ndarray) -> float:
     """Divide one realisation's whole delay state, y (2C,) and hist (C, d), by its
     Euclidean norm (the squares summed over y, then the rings in order) and return
-    the norm."""
+    the norm; a norm that is not finite and positive (the state overflowed float64 within
+    one interval) is returned with the state left as it is."""
     nc = hist.shape[0]
     d = hist.shape[1]
     s = 0.0
@@ -128,6 +129,8 @@ def renormalise(y: np.ndarray, hist: np.ndarray) -> float:
         for m in range(d):
             s += hist[i, m] * hist[i, m]
     norm = math.sqrt(s)
+    if not (norm > 0.0 and norm < math.inf):  # overflowed (or nan): left for the caller
+        return norm
     inv = 1.0 / norm
     for m in range(2 * nc):
         y[m] *= inv

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-__all__ = ["zoh_matrices", "zoh_response"]
+__all__ = ["zoh_delayed_feedback", "zoh_matrices", "zoh_response"]
 
 
 def zoh_matrices(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -69,5 +69,57 @@ def zoh_response(
     forced = u @ bd.T  # (R, K, n)
     for k in range(u.shape[1]):
         x = x @ ad.T + forced[:, k]
+        out[:, k] = x
+    return out
+
+
+def zoh_delayed_feedback(
+    ad: np.ndarray,
+    bd: np.ndarray,
+    x0: np.ndarray,
+    *,
+    errors: np.ndarray,
+    inputs: np.ndarray,
+    gain: float,
+    noise_scale: float,
+    xi: np.ndarray,
+    delay_steps: int,
+    e_before: np.ndarray,
+) -> np.ndarray:
+    """The exact sampled-data closed loop of the paper's eq. (5), forces held per interval.
+
+    x_{k+1} = A_d x_k + B_d u_k with u_k = inputs @ f_k and, per controller i,
+    f_{k,i} = gain (1 + noise_scale xi_{k,i}) e_{k-d,i}, e_j = errors @ x_j (m), the
+    error before the start (j < 0) held at ``e_before``: the delayed random-gain
+    feedback as :class:`cip.runner.CIPRunner` applies it, with the plant solved exactly
+    over each hold interval (A_d, B_d from :func:`zoh_matrices`).
+
+    Parameters
+    ----------
+    ad, bd : (n, n), (n, m) the discrete plant over one hold interval h.
+    x0 : (R, n) initial states.
+    errors : (C, n) the balancing errors' rows (m per state unit).
+    inputs : (m, C) which input each controller's force drives.
+    gain : M beta (N/m).
+    noise_scale : nu / sqrt(h), the random gain's spread per unit draw.
+    xi : (R, K, C) standard-normal draws, one per interval and controller.
+    delay_steps : d = tau / h, >= 1.
+    e_before : (R, C) the balancing errors held before t = 0 (m).
+
+    Returns
+    -------
+    (R, K, n): the state at t = (k + 1) h for k = 0 .. K-1.
+    """
+    if delay_steps < 1:
+        raise ValueError(f"delay_steps must be >= 1, got {delay_steps!r}")
+    x = np.array(x0, dtype=float)
+    r, k_total, _ = xi.shape
+    hist = np.empty((r, delay_steps + k_total, errors.shape[0]))
+    hist[:, :delay_steps] = e_before[:, None]  # steps -d .. -1
+    out = np.empty((r, k_total, x.shape[1]))
+    for k in range(k_total):
+        hist[:, delay_steps + k] = x @ errors.T  # step k
+        f = gain * (1.0 + noise_scale * xi[:, k]) * hist[:, k]  # e at step k - d
+        x = x @ ad.T + (f @ inputs.T) @ bd.T
         out[:, k] = x
     return out

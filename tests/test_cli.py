@@ -25,6 +25,16 @@ def test_lyapunov_json(capsys):
     assert d["lambda1"] < 0 and len(d["ci95"]) == 2 and d["ci95"][0] <= d["lambda1"] <= d["ci95"][1]
 
 
+def test_lyapunov_beyond_float64_is_one_line_naming_beta(capsys):
+    """A gain whose tangent growth overflows float64 within one renormalisation interval
+    (beta 1e300) gets one line naming beta, not a ZeroDivisionError from the kernel."""
+    code, _, err = run(capsys, "lyapunov", "--duration", "0.2", "--realizations", "2",
+                       "--beta", "1e300")  # fmt: skip
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "beta" in lines[0] and "overflowed" in lines[0], err
+
+
 def test_stability_json_and_plot(capsys, tmp_path):
     png = tmp_path / "region.png"
     code, out, _ = run(

@@ -26,6 +26,7 @@ from cipcore.scenario import EngineTarget, Execution, Recording, Scenario
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 from validation.checks import metrics, refinement
+from validation.checks.closed_loop import closed_loop_check
 from validation.checks.rod import rod_check
 from validation.checks.stats import (
     FAIL,
@@ -1264,6 +1265,9 @@ def instrument_checks(
             checks.append(
                 refinement.refinement_check(model, m, eng, seed, backend=backend, threads=threads)
             )
+        if judged == refinement.REFINEMENT:  # the controller's path, which no twin checks
+            checks.append(closed_loop_check(model, m, eng, seed, params=p, fault=fault,
+                                            backend=backend, threads=threads))  # fmt: skip
         expected = round(p.tau / m.opt.timestep)
         got = measured_delay(model, pe, phys, m, backend)
         checks.append(

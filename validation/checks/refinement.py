@@ -125,6 +125,7 @@ __all__ = [
     "WINDOW",
     "PrecisionSetting",
     "Refinement",
+    "compare",
     "extrapolate",
     "float32_stand_in",
     "float32_state",
@@ -373,15 +374,22 @@ def refine(
                               max(1, round(chunk_time / (h / sub))), threads)  # fmt: skip
         q = states[:, sub - 1 :: sub, 1 : 1 + nq] - qpos0
         runs.append(q @ obs.T)
+    return compare(runs, exact, steps)
+
+
+def compare(runs: list[np.ndarray], exact: np.ndarray, steps: list[float]) -> Refinement:
+    """The :class:`Refinement` of trajectories ``runs`` (R, K, .) at ``steps`` (s, each
+    half the one before) against the ``exact`` solution: extrapolation, E0 and its
+    interval (module docstring)."""
     norm = float(np.linalg.norm(exact))
     errors = tuple(float(np.linalg.norm(y - exact)) / norm for y in runs)
     y0, p, p_coarse, change = extrapolate(runs, ROUNDOFF)
     e0 = float(np.linalg.norm(y0 - exact)) / norm
     per = np.array([np.linalg.norm(y0[r] - exact[r]) / np.linalg.norm(exact[r])
-                    for r in range(n_realizations)])  # fmt: skip
+                    for r in range(exact.shape[0])])  # fmt: skip
     from validation.checks.stats import t_half_width
 
-    spread = t_half_width(per) if n_realizations > 1 else 0.0
+    spread = t_half_width(per) if exact.shape[0] > 1 else 0.0
     width = change / norm + (spread if np.isfinite(spread) else 0.0)
     return Refinement(
         steps=tuple(steps), errors=errors, order=p, order_coarse=p_coarse, e0=e0,

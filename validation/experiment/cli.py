@@ -13,11 +13,13 @@ from pathlib import Path
 from cipcore import ParameterError
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import check_count, check_positive
-from validation.cli.args import add_no_figures_arg
+from validation.cli.args import add_force_arg, add_no_figures_arg, check_work
 from validation.cli.domains import DOMAINS
 from validation.cli.main import add_command, add_group, command
 from validation.experiment.task import DURATION, ENGINES, TaskSettings
 
+#: the most bot trials per subject and mode (each writes one recording file)
+MAX_TRIALS = 10_000
 #: an output directory's declared domain: not empty, not an existing file
 OUT_DIR = DOMAINS["out dir"].converter()
 
@@ -87,7 +89,7 @@ def register(subparsers) -> None:
                    help="task: one stick, two coupled sticks, or both")  # fmt: skip
     b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
     b.add_argument("--trials", type=int, default=5,
-                   help="trials per subject and mode (count >= 1)")  # fmt: skip
+                   help=f"trials per subject and mode (count in [1, {MAX_TRIALS}])")  # fmt: skip
     _add_trial_duration_arg(b)
     b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
     b.add_argument("--tau", type=float, default=0.1, help="bot delay (s), >= dt = 1 ms, whole ms")
@@ -95,6 +97,7 @@ def register(subparsers) -> None:
     b.add_argument("--seed", type=int, default=0,
                    help="root seed of every bot's draws (integer >= 0)")  # fmt: skip
     _add_engine_arg(b)
+    add_force_arg(b)
 
 
 @command(
@@ -168,8 +171,18 @@ def cmd_bots(a: argparse.Namespace) -> int:
 
     labels = _labels(a.subjects)
     trials = check_count("--trials", a.trials)
+    if trials > MAX_TRIALS:
+        raise ParameterError(
+            f"--trials must be an integer in [1, {MAX_TRIALS}] (each trial writes one "
+            f"recording per subject), got {trials}"
+        )
     check_count("--seed", a.seed, minimum=0)
     modes = MODEL_NAMES if a.mode == "both" else (a.mode,)
+    check_positive("--trial-duration", a.trial_duration)
+    # every bot steps the tip at the task's dt: one realisation per subject and trial
+    dt = TaskSettings().params.dt
+    check_work("--trials x --trial-duration", 2 * trials, a.trial_duration, dt,
+               runs=len(modes), force=a.force)  # fmt: skip
     # one independent stream per (mode, trial, subject), fixed by --seed
     seeds = iter(np.random.SeedSequence(a.seed).generate_state(2 * trials * 2 * len(modes)))
     out = Path(a.out)

@@ -196,14 +196,17 @@ def model_runs(kinds: list[str] | None, engine: str, power: bool) -> list[tuple[
 def fixed_steps(engine: str, model: str) -> float:
     """Realisation-steps of one model's direct checks that do not scale with the
     realisations: the refinement check (:data:`~validation.checks.refinement.REALIZATIONS`
-    force sequences over its window at h, h/2, ..., h / 2**(LEVELS - 1)) and the delay
-    probe (2 runs of 3 delays, one realisation)."""
+    force sequences over its window at h, h/2, ..., h / 2**(LEVELS - 1)), for an engine
+    without an exact twin the closed-loop check (:mod:`validation.checks.closed_loop`, the
+    same count), and the delay probe (2 runs of 3 delays, one realisation)."""
     from validation.checks import refinement as rf
 
     dt = PAPER["dt"]
-    window = rf.precision_setting(model, rigid_engine(engine).capabilities.precision).window
+    caps = rigid_engine(engine).capabilities
+    window = rf.precision_setting(model, caps.precision).window
     delay = round(PAPER["tau"] / dt)
-    return rf.REALIZATIONS * round(window / dt) * (2**rf.LEVELS - 1) + 2 * 3 * delay
+    refinements = 1 if caps.twin is not None else 2
+    return refinements * rf.REALIZATIONS * round(window / dt) * (2**rf.LEVELS - 1) + 2 * 3 * delay
 
 
 def selftest_work(

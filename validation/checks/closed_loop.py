@@ -1,0 +1,223 @@
+"""The closed loop by time-step refinement: an engine's controller, delay and noise
+against the exact sampled-data solution.
+
+The open-loop refinement (:mod:`validation.checks.refinement`) holds an engine's
+rigid body to the exact solution, but with cipval's forces: nothing the engine's
+controller does (its gain, its noise, the draws each balancer gets) enters it.  An
+engine with an exact twin has that checked by ``twin.trajectory`` under the same
+noise; an engine judged by refinement had no such check, so a noise drawn without its
+1/sqrt(dt), a noise strength nu 1 % off or two balancers sharing one noise stream went
+unseen (the selftests of Pinocchio, DART, Newton, PhysX and the C engine).
+
+This check closes the loop.  The paper's controller, eq. (5),
+F_i = M beta (1 + nu xi_i / sqrt(h)) e_i(t - tau), runs at the model file's time step h
+(the control interval) as the engine's run applies it (:class:`cip.runner.CIPRunner`,
+with the engine's own parameters and draws, faults included), and the engine steps each
+interval in 1, 2, 4 and 8 steps with the force held (:func:`substepped`).  The draws
+are the same at every level, so as the engine's step shrinks its trajectory converges
+to the exact sampled-data closed loop of the linearised model under the suite's
+parameters and draws (:func:`reduced.zoh.zoh_delayed_feedback`): the limit moves when
+the controller's gain, noise strength, noise scaling or draws are wrong, and does not
+when the stepper is another correct one.  The extrapolation, E0, its interval, the
+floor and the order are the open-loop check's (:func:`refinement.extrapolate`,
+:func:`refinement.precision_setting`).
+
+The loop is linear in the state (the random gain multiplies e), so the response scales
+with the initial tilt: the initial balancing error is chosen so that the largest |e| of
+the exact response is the setting's amplitude (1e-5 m in float64).
+
+Measured (MuJoCo's Euler run as a refinement-tier engine, seed 1, 4 realisations, 1 s,
+dt = 1 .. 1/8 ms): E0 4.5e-9 (single) and 5.2e-9 (coupled), order 1.004, the
+interval's upper end 4e-8, within the float64 floor 1e-6.  Noise faults: nu x1.00001
+gives E0 1.7e-6 (single) and 2.8e-6 (coupled), nu x1.01 1.7e-3 and 2.8e-3, the noise
+without 1/sqrt(dt) 0.17 and 0.25, the two balancers sharing one noise stream 0.32
+(coupled).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+import numpy as np
+
+from validation.checks import refinement
+from validation.checks.refinement import Refinement, RefinementSetting
+
+__all__ = ["closed_loop_check", "refine_closed_loop", "substepped"]
+
+
+def substepped(base: type, sub: int) -> type:
+    """``base`` (a :class:`cip.runner.RolloutBackend` class) stepping ``sub`` steps of
+    h / sub per step of the model it is given (h its time step), the control held.
+
+    The states handed back are those at the model's steps (every ``sub``-th), so the
+    closed loop around it runs at h whatever ``sub`` is.
+    """
+    if sub == 1:
+        return base
+
+    class SubStepped(base):
+        def __init__(self, model: mujoco.MjModel, n_realizations: int, threads: int):
+            fine = copy.deepcopy(model)
+            fine.opt.timestep = model.opt.timestep / sub
+            super().__init__(fine, n_realizations, threads)
+
+        def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
+            r, n, _ = ctrl.shape
+            buf = np.empty((r, n * sub, out.shape[2]))
+            super().__call__(state, np.ascontiguousarray(np.repeat(ctrl, sub, axis=1)), buf)
+            out[:] = buf[:, sub - 1 :: sub]
+
+    SubStepped.__name__ = SubStepped.__qualname__ = f"SubStepped{sub}{base.__name__}"
+    return SubStepped
+
+
+def _engine_run(model, m, physical, params, backend, xi, amplitude, obs, threads):
+    """The observable (R, K, 2C) after each control interval of the engine's closed loop."""
+    from cip.runner import CIPRunner
+
+    r = CIPRunner(model, params, physical, xi.shape[0], amplitude, threads=threads,
+                  backend=backend, mj_model=m)  # fmt: skip
+    out = []
+    try:
+        k = 0
+        while k < xi.shape[1]:
+            n = min(r.d, xi.shape[1] - k)
+            out.append(r.advance(np.ascontiguousarray(xi[:, k : k + n])))
+            k += n
+    finally:
+        close = getattr(r.backend, "close", None)
+        if close is not None:
+            close()
+    states = np.concatenate(out, axis=1)
+    return (states[..., 1 : 1 + m.nq] - m.qpos0) @ obs.T
+
+
+def refine_closed_loop(
+    model: str,
+    m: mujoco.MjModel,
+    backend: type,
+    *,
+    params,
+    engine_params,
+    engine_xi: np.ndarray | None,
+    rod: str,
+    setting: RefinementSetting,
+    threads: int = 1,
+) -> Refinement:
+    """The engine's closed loop at steps h .. h / 2**(levels-1) against the exact one.
+
+    ``params`` (:class:`cipcore.params.BalanceParams`): the suite's controller, the
+    reference's; ``engine_params`` and ``engine_xi`` (R, K, C) the engine's (a fault's;
+    None: the seed's draws).  ``m`` is the compiled model file, its time step h = dt.
+    """
+    from cip.linearize import rod_jacobians
+    from cip.mjcf_params import read_mapping
+    from cipcore.noise import GainNoise
+    from reduced.zoh import zoh_delayed_feedback, zoh_matrices
+
+    h = float(m.opt.timestep)
+    physical = read_mapping(m).physical()
+    motors, obs = refinement.observable(m)
+    nc = len(motors)
+    k_int = round(setting.window / h)
+    r_n = setting.n_realizations
+    xi = GainNoise(setting.seed, r_n, nc).next_chunk(k_int)
+    a, b = rod_jacobians(m, rod)
+    ad, bd = zoh_matrices(a, b, h)
+    errors = np.zeros((nc, a.shape[0]))
+    errors[:, : m.nq] = obs[1::2]
+    inputs = np.zeros((m.nu, nc))
+    inputs[motors, np.arange(nc)] = 1.0
+    length = physical.pendulum_length
+    hinge = [int(np.flatnonzero(row)[0]) for row in obs[1::2]]
+
+    def exact(theta0: float) -> np.ndarray:
+        x0 = np.zeros((r_n, a.shape[0]))
+        x0[:, hinge] = theta0
+        y = zoh_delayed_feedback(
+            ad, bd, x0, errors=errors, inputs=inputs, gain=physical.cart_mass * params.beta,
+            noise_scale=params.noise_scale, xi=xi, delay_steps=params.delay_steps,
+            e_before=np.full((r_n, nc), length * np.sin(theta0)),
+        )  # fmt: skip
+        return y[..., : m.nq] @ obs.T
+
+    # the loop is linear in the state: tilt so that the largest |e| is the amplitude
+    unit = 1e-6
+    peak = float(np.abs(exact(unit)[..., 1::2]).max())
+    theta0 = unit * setting.amplitude / peak
+    ref = exact(theta0)
+    xi_e = xi if engine_xi is None else engine_xi
+    runs, steps = [], []
+    for lev in range(setting.levels):
+        sub = 2**lev
+        steps.append(h / sub)
+        runs.append(_engine_run(model, m, physical, engine_params, substepped(backend, sub),
+                                xi_e, length * np.sin(theta0), obs, threads))  # fmt: skip
+    return refinement.compare(runs, ref, steps)
+
+
+def closed_loop_check(
+    model: str,
+    m: mujoco.MjModel,
+    engine,
+    seed: int,
+    *,
+    params,
+    fault=None,
+    backend=None,
+    threads: int | None = None,
+):
+    """The ``closed_loop.<model>`` check of ``engine`` on the compiled model file ``m``.
+
+    ``params``: the suite's controller (its dt the file's time step); ``fault`` (a
+    :class:`validation.faults.catalogue.Fault`) gives the engine other parameters or
+    draws, ``backend`` the engine's rollout class (a fault wraps it; default its own).
+    The precision setting and floor are the open-loop check's.
+    """
+    from cipcore.models import get_model
+    from validation.checks.stats import FAIL, PASS, Check
+
+    caps = engine.capabilities
+    rod = "soft" if caps.rod == "soft" else "rigid"
+    ps = refinement.precision_setting(model, caps.precision)
+    setting = RefinementSetting(seed, window=ps.window, amplitude=ps.amplitude)
+    nc = get_model(model).n_controllers
+    k_int = round(ps.window / m.opt.timestep)
+    engine_params, engine_xi = params, None
+    if fault is not None:
+        engine_params = fault.engine_params(params)
+        noise = fault.noise(seed, setting.n_realizations, nc, k_int)
+        engine_xi = None if noise is None else noise.next_chunk(k_int)
+    r = refine_closed_loop(
+        model, m, backend or engine.rollout(), params=params, engine_params=engine_params,
+        engine_xi=engine_xi, rod=rod, setting=setting,
+        threads=max(1, min(threads or 1, setting.n_realizations)),
+    )  # fmt: skip
+    need = refinement.least_order(caps)
+    ok = r.passes(ps.floor, need)
+    return Check(
+        name=f"closed_loop.{model}",
+        status=PASS if ok else FAIL,
+        values={
+            "e0": r.e0,
+            "e0_interval": list(r.e0_interval),
+            "floor": ps.floor,
+            "order": r.order,
+            "least_order": need,
+            "steps_s": list(r.steps),
+            "errors": list(r.errors),
+        },
+        tolerance=(
+            f"E0, the relative L2 distance of the dt -> 0 limit of the engine's closed loop "
+            f"to the exact sampled-data loop of eq. (5) (the suite's gain, noise strength "
+            f"and draws), <= {ps.floor:g}, and the observed order >= {need:g}"
+        ),
+        details=(
+            f"delayed random-gain feedback at h = {m.opt.timestep:g} s, tau "
+            f"{params.tau:g} s, beta {params.beta:g}, nu {params.nu:g}; the engine steps "
+            f"h .. h/{2 ** (setting.levels - 1)}; {setting.n_realizations} realisations x "
+            f"{ps.window:g} s, largest |e| {ps.amplitude:g} m, rod {rod}, seed {seed}"
+        ),
+    )
