@@ -135,3 +135,21 @@ def test_study_script_runs_small_and_refuses_bad_sizes(tmp_path, capsys):
         beta_star_study.main(["--duration", "30"])
     assert exc.value.code == 2
     assert "--duration must be a multiple of 20 s" in capsys.readouterr().err
+
+
+def test_beta_star_rises_with_alpha_and_falls_with_the_noise():
+    """benchmarks/beta_star_parameters.py's derivative: beta* rises with the instability
+    alpha (about 0.9 per 1/s^2 at the paper's parameters) and falls with the noise
+    strength nu (the random gain stabilises here), on common random numbers."""
+    import argparse
+
+    import beta_star_parameters as bsp
+
+    a = argparse.Namespace(duration=100.0, realizations=4, seed=1, threads=1)
+    betas = np.linspace(17.0, 24.0, 6)
+    idx = bootstrap_indices(1, 4, 100)
+    base = BalanceParams(beta=20.0)
+    d_alpha, ci_alpha = bsp.sensitivity("single", base, betas, "alpha", 0.1, a, idx)
+    d_nu, ci_nu = bsp.sensitivity("single", base, betas, "nu", 0.01, a, idx)
+    assert 0.5 < d_alpha < 1.3 and ci_alpha[0] <= d_alpha <= ci_alpha[1]
+    assert d_nu < 0 and ci_nu[1] < 0

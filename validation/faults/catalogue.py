@@ -325,6 +325,29 @@ CATALOGUE: tuple[tuple[str, float], ...] = (
 )
 
 
+#: Catalogue sizes below what a float32 engine's checks can resolve, raised for such an
+#: engine (``capabilities.precision == "float32"``), with why.  A float32 engine without
+#: a twin is judged by refinement at the float32 setting (floor 1.2e-4 single, 1.6e-4
+#: coupled): a bob inertia of 1e-4 kappa moves E0 by about 1e-5, inside the floor; 1e-2
+#: kappa gives E0 4e-4 to 1.5e-3, flagged at every one of seeds 1-3 on both models
+#: (PhysX through SAPIEN, the open-loop check alone; 1e-3: 3 of 6, 3e-3: 6 of 6 at the
+#: floor's edge).
+FLOAT32_SIZES: dict[str, tuple[float, str]] = {
+    "bob_inertia": (
+        1e-2,
+        "raised from 1e-4 for float32: 1e-4 kappa moves the refinement E0 by about 1e-5, "
+        "inside float32's floor 1.2e-4",
+    ),
+}
+
+
+def catalogue_sizes(precision: str = "float64") -> list[tuple[str, float, str]]:
+    """(fault type, size, why the size differs from :data:`CATALOGUE`'s or "") of the
+    selftest of an engine of ``precision`` ("float64" or "float32")."""
+    raised = FLOAT32_SIZES if precision == "float32" else {}
+    return [(k, *raised[k]) if k in raised else (k, s, "") for k, s in CATALOGUE]
+
+
 def catalogue() -> list[Fault]:
     """The catalogued faults at their listed sizes."""
     return [make_fault(k, s) for k, s in CATALOGUE]

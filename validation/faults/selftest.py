@@ -37,7 +37,13 @@ from validation.cli.args import (
 from validation.cli.ci_options import add_ci_options, junit_file, run_environment
 from validation.cli.engine_options import add_engine_options, check_engine_options
 from validation.cli.main import add_command, command
-from validation.faults.catalogue import CATALOGUE, FAULT_TYPES, Fault, make_fault
+from validation.faults.catalogue import (
+    CATALOGUE,
+    FAULT_TYPES,
+    Fault,
+    catalogue_sizes,
+    make_fault,
+)
 
 
 def flagged_by(
@@ -82,11 +88,13 @@ def run_selftest(
         seed, n_realizations
     )
     rows = []
-    for kind, size in CATALOGUE:
+    for kind, size, raised in catalogue_sizes(eng.capabilities.precision):
         if kinds and kind not in kinds:
             continue
         fault = make_fault(kind, size)
         row = {"fault": kind, "size": size, "unit": fault.unit, "description": fault.description}
+        if raised:
+            row["size_note"] = raised
         why = fault.not_applicable(eng)
         if why is not None:
             rows.append({**row, "flagged": None, "by": [], "not_applicable": why, "seconds": 0.0})
@@ -111,13 +119,15 @@ def smallest_detectable(
     engine: str = "mujoco",
     integrator: str | None = None,
 ) -> dict:
-    """Bisection (geometric) on |size| between 1e-12 and the catalogue size.
+    """Bisection (geometric) on |size| between 1e-12 and the catalogue size (the engine's:
+    :func:`validation.faults.catalogue.catalogue_sizes`).
 
     Fixed faults (flags, sign flips) and one-step delays have no smaller size:
     their row states that.  The sign of the catalogue size is kept.
     """
     spec = FAULT_TYPES[kind]
-    size = dict(CATALOGUE)[kind]
+    precision = rigid_engine(engine).capabilities.precision
+    size = {k: s for k, s, _ in catalogue_sizes(precision)}[kind]
 
     def flagged(fault: Fault, seed: int, n_realizations: int) -> list[str]:
         return flagged_by(fault, seed, n_realizations, engine, integrator)
@@ -269,8 +279,9 @@ def format_table(clean: list[str], rows: list[dict]) -> str:
             flag, by = "n/a", f"not applicable: {r['not_applicable']}"
         else:
             flag = "yes" if r["flagged"] else "NO"
+        note = f" (size {r['size_note']})" if r.get("size_note") else ""
         out.append(f"{r['fault']:<24} {r['size']:>10.4g} {r['unit']:<9} "
-                   f"{flag:<8} {by}")  # fmt: skip
+                   f"{flag:<8} {by}{note}")  # fmt: skip
     return "\n".join(out)
 
 

@@ -78,7 +78,9 @@ BETA_STAR_OFFSET = (
     "no numerical setting tried reproduces the paper's beta* (estimator, dt 0.1-10 ms, "
     "noise held 10-20 ms, Euler-Maruyama or Heun, target 5e-5 or 5e-4, 100-10,000 s): "
     "at 10,000 s cipval's beta* is 20.367 +- 0.022 and 21.071 +- 0.016, +2.8 and +2.5 SE "
-    "above the paper's (docs/paper.md, 'Where beta* comes from')"
+    "above the paper's; the printed parameters' precision does: nu = 0.6135 (printed 0.6) "
+    "gives 20.304 +- 0.022 and 21.032 +- 0.016, -0.1 and +0.0 SE (alpha = 21.944, printed "
+    "22: +0.6 and -0.8 SE) (docs/paper.md, 'The printed parameters')"
 )
 
 
