@@ -5,8 +5,8 @@ The numerical setting does not explain the offset of cipval's beta* above the pa
 paper prints its parameters to one or two significant digits (section 3: gamma = 50,
 alpha = 22, nu = 0.6, tau = 0.1), and beta* is printed to five (20.306, 21.032,
 Fig. 4's caption).  This script measures d beta* / d p for each printed parameter p
-(alpha 1/s^2, gamma 1/s, nu s^1/2, tau s) by central differences +-``--step`` of one
-unit in the printed parameter's last digit times the step fraction, on common random
+(alpha 1/s^2, gamma 1/s, nu s^1/2, tau s) by central differences of +-``--step`` times
+half a unit in the printed parameter's last digit (0.2: +-0.1 in alpha), on common random
 numbers (every parameter set reads the seed's draws; lambda1 at each of ``--gains``
 gains over the model's range, :func:`reduced.lyapunov.lyapunov_gains`), and states:
 

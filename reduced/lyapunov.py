@@ -138,12 +138,14 @@ def lyapunov_gains(
     run_blocks(noise, n_steps, work, threads=execution.threads,
                progress=execution.progress and "lyapunov")  # fmt: skip
     if not np.isfinite(logsum).all():
-        worst = max(params_seq, key=lambda p: p.beta)
+        g = int(np.flatnonzero(~np.isfinite(logsum).all(axis=1))[0])
+        p = params_seq[g]
         raise ParameterError(
-            f"beta: the tangent dynamics overflowed float64 within one renormalisation "
-            f"interval ({renorm:g} s: lambda1 above {709.0 / renorm:.3g} 1/s) at beta up to "
-            f"{worst.beta:g} 1/s^2; the reduced model cannot measure lambda1 there (lower "
-            f"beta, or shorten renorm_interval)"
+            f"alpha, beta, gamma, nu: the tangent dynamics left float64's range within one "
+            f"renormalisation interval ({renorm:g} s: |lambda1| above {709.0 / renorm:.3g} "
+            f"1/s) at alpha {p.alpha:g} 1/s^2, beta {p.beta:g} 1/s^2, gamma {p.gamma:g} 1/s, "
+            f"nu {p.nu:g} s^1/2; the reduced model cannot measure lambda1 there (bring them "
+            "nearer the paper's, or shorten renorm_interval)"
         )
     # accumulation starts at the first renormalisation after the transient
     start = (transient_steps // renorm_steps) * renorm_steps

@@ -32,7 +32,7 @@ def test_lyapunov_beyond_float64_is_one_line_naming_beta(capsys):
                        "--beta", "1e300")  # fmt: skip
     assert code == 2
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and "beta" in lines[0] and "overflowed" in lines[0], err
+    assert len(lines) == 1 and "beta 1e+300" in lines[0] and "float64's range" in lines[0], err
 
 
 def test_stability_json_and_plot(capsys, tmp_path):

@@ -97,6 +97,7 @@ def test_a_correct_engine_converges_to_the_exact_loop(model):
         ("single", ("noise_without_sqrt_dt", 1)),
         ("coupled", ("shared_noise", 1)),
         ("coupled", ("gain_one_controller", -1e-3)),
+        ("single", ("delay_short", 1)),
     ],
 )
 def test_controller_faults_move_the_limit(model, fault):
@@ -119,3 +120,30 @@ def test_only_refinement_tier_engines_get_the_check():
     checks = {c.name: c for c in instrument_checks(
         1, 1, target=EngineTarget("mujoco-refinement-tier"), models=("single",))}  # fmt: skip
     assert checks["closed_loop.single"].status == "pass", checks["closed_loop.single"].values
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_the_float32_stand_in_passes_at_its_setting_and_fails_a_noise_fault(model):
+    """MuJoCo's Euler rounded to float32 every step (a correct float32 engine without a
+    twin) passes at the float32 setting's floor; nu x1.01 fails it."""
+    from validation.checks import refinement
+
+    eng = refinement.float32_stand_in()
+    ps = refinement.FLOAT32_SETTINGS[model]
+    clean = _check(model, engine=eng)
+    assert clean.status == "pass" and clean.values["floor"] == ps.floor, clean.values
+    assert clean.values["e0_interval"][1] > FLOOR  # float32 rounding: not a float64 engine
+    faulty = _check(model, ("noise_scale", 0.01), engine=eng)
+    assert faulty.status == "fail" and faulty.values["e0_interval"][0] > ps.floor
+
+
+def test_the_order_asked_follows_the_files_integrator():
+    """An engine that follows the file's integrator is asked the file's order: RK4's
+    (4 less 0.3), as the open-loop check asks it."""
+    from validation.checks.agreement import model_file
+
+    eng = _refinement_mujoco()
+    c = closed_loop_check("single", model_file("single", None, "RK4"), eng, 1,
+                          params=BalanceParams(beta=PAPER_BETA["single"]))  # fmt: skip
+    assert c.values["least_order"] == pytest.approx(3.7)
+    assert c.status == "pass" and c.values["order"] > 3.7, c.values

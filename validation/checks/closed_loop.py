@@ -1,5 +1,5 @@
-"""The closed loop by time-step refinement: an engine's controller, delay and noise
-against the exact sampled-data solution.
+"""The closed loop by time-step refinement: an engine under the paper's delayed
+random-gain feedback against the exact sampled-data solution.
 
 The open-loop refinement (:mod:`validation.checks.refinement`) holds an engine's
 rigid body to the exact solution, but with cipval's forces: nothing the engine's
@@ -9,11 +9,15 @@ noise; an engine judged by refinement had no such check, so a noise drawn withou
 1/sqrt(dt), a noise strength nu 1 % off or two balancers sharing one noise stream went
 unseen (the selftests of Pinocchio, DART, Newton, PhysX and the C engine).
 
-This check closes the loop.  The paper's controller, eq. (5),
+This check closes the loop.  cipval's controller, the paper's eq. (5),
 F_i = M beta (1 + nu xi_i / sqrt(h)) e_i(t - tau), runs at the model file's time step h
-(the control interval) as the engine's run applies it (:class:`cip.runner.CIPRunner`,
-with the engine's own parameters and draws, faults included), and the engine steps each
-interval in 1, 2, 4 and 8 steps with the force held (:func:`substepped`).  The draws
+(the control interval) on the engine's states, as every run of the engine applies it
+(:class:`cip.runner.CIPRunner`; a selftest's controller faults, injected at the engine
+boundary, change its parameters or draws), and the engine steps each interval in 1, 2,
+4 and 8 steps with the force held (:func:`substepped`).  The engine is thus held to
+the exact solution under forces that follow its own states and change every interval,
+and the path from its states through the delay, the gain and the noise to its forces
+is checked end to end.  The draws
 are the same at every level, so as the engine's step shrinks its trajectory converges
 to the exact sampled-data closed loop of the linearised model under the suite's
 parameters and draws (:func:`reduced.zoh.zoh_delayed_feedback`): the limit moves when
@@ -195,7 +199,8 @@ def closed_loop_check(
         engine_xi=engine_xi, rod=rod, setting=setting,
         threads=max(1, min(threads or 1, setting.n_realizations)),
     )  # fmt: skip
-    need = refinement.least_order(caps)
+    integrator = refinement.m_integrator(m) if len(getattr(engine, "integrators", ())) > 1 else None
+    need = refinement.least_order(caps, integrator)
     ok = r.passes(ps.floor, need)
     return Check(
         name=f"closed_loop.{model}",

@@ -325,8 +325,8 @@ CATALOGUE: tuple[tuple[str, float], ...] = (
 )
 
 
-#: Catalogue sizes below what a float32 engine's checks can resolve, raised for such an
-#: engine (``capabilities.precision == "float32"``), with why.  A float32 engine without
+#: Catalogue sizes below what a float32 engine's refinement checks can resolve, raised for
+#: a float32 engine without an exact twin, with why.  A float32 engine without
 #: a twin is judged by refinement at the float32 setting (floor 1.2e-4 single, 1.6e-4
 #: coupled): a bob inertia of 1e-4 kappa moves E0 by about 1e-5, inside the floor; 1e-2
 #: kappa gives E0 4e-4 to 1.5e-3, flagged at every one of seeds 1-3 on both models
@@ -341,10 +341,15 @@ FLOAT32_SIZES: dict[str, tuple[float, str]] = {
 }
 
 
-def catalogue_sizes(precision: str = "float64") -> list[tuple[str, float, str]]:
+def catalogue_sizes(capabilities=None) -> list[tuple[str, float, str]]:
     """(fault type, size, why the size differs from :data:`CATALOGUE`'s or "") of the
-    selftest of an engine of ``precision`` ("float64" or "float32")."""
-    raised = FLOAT32_SIZES if precision == "float32" else {}
+    selftest of an engine of ``capabilities`` (:class:`cipcore.engine.Capabilities`;
+    None: the listed sizes): :data:`FLOAT32_SIZES` for a float32 engine without an exact
+    twin (judged by refinement at the float32 floor; a float32 engine with a twin is
+    judged by it, at its own floor)."""
+    refinement_f32 = (capabilities is not None and capabilities.precision == "float32"
+                      and capabilities.twin is None)  # fmt: skip
+    raised = FLOAT32_SIZES if refinement_f32 else {}
     return [(k, *raised[k]) if k in raised else (k, s, "") for k, s in CATALOGUE]
 
 

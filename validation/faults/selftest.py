@@ -88,7 +88,7 @@ def run_selftest(
         seed, n_realizations
     )
     rows = []
-    for kind, size, raised in catalogue_sizes(eng.capabilities.precision):
+    for kind, size, raised in catalogue_sizes(eng.capabilities):
         if kinds and kind not in kinds:
             continue
         fault = make_fault(kind, size)
@@ -126,8 +126,8 @@ def smallest_detectable(
     their row states that.  The sign of the catalogue size is kept.
     """
     spec = FAULT_TYPES[kind]
-    precision = rigid_engine(engine).capabilities.precision
-    size = {k: s for k, s, _ in catalogue_sizes(precision)}[kind]
+    caps = rigid_engine(engine).capabilities
+    size = {k: s for k, s, _ in catalogue_sizes(caps)}[kind]
 
     def flagged(fault: Fault, seed: int, n_realizations: int) -> list[str]:
         return flagged_by(fault, seed, n_realizations, engine, integrator)
@@ -206,16 +206,20 @@ def model_runs(kinds: list[str] | None, engine: str, power: bool) -> list[tuple[
 def fixed_steps(engine: str, model: str) -> float:
     """Realisation-steps of one model's direct checks that do not scale with the
     realisations: the refinement check (:data:`~validation.checks.refinement.REALIZATIONS`
-    force sequences over its window at h, h/2, ..., h / 2**(LEVELS - 1)), for an engine
-    without an exact twin the closed-loop check (:mod:`validation.checks.closed_loop`, the
-    same count), and the delay probe (2 runs of 3 delays, one realisation)."""
+    force sequences over its window at h, h/2, ..., h / 2**(LEVELS - 1); none for a
+    float32 engine its twin judges), for an engine without an exact twin or one that
+    declared nothing the closed-loop check (:mod:`validation.checks.closed_loop`, the same
+    count), and the delay probe (2 runs of 3 delays, one realisation)."""
     from validation.checks import refinement as rf
 
     dt = PAPER["dt"]
     caps = rigid_engine(engine).capabilities
     window = rf.precision_setting(model, caps.precision).window
     delay = round(PAPER["tau"] / dt)
-    refinements = 1 if caps.twin is not None else 2
+    # the open loop, except for a float32 engine its twin judges (FLOAT32_RULE); the closed
+    # loop for an engine without a twin or one that declared nothing (its tier is measured)
+    twin_tier = caps.twin is not None and caps.declared
+    refinements = int(not (twin_tier and caps.precision == "float32")) + int(not twin_tier)
     return refinements * rf.REALIZATIONS * round(window / dt) * (2**rf.LEVELS - 1) + 2 * 3 * delay
 
 
