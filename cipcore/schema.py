@@ -126,6 +126,11 @@ def recording_bytes(
     return n_samples * n_realizations * nc * n_fields * np.dtype(recording.dtype).itemsize
 
 
+class RecordingSizeError(ParameterError):
+    """A recording beyond its memory cap (:func:`plan_recording`): a command line names its
+    own options for the sizes (realisations, duration, decimation)."""
+
+
 def plan_recording(
     n_steps: int,
     n_realizations: int,
@@ -148,7 +153,7 @@ def plan_recording(
     n_samples = -(-n_steps // decimate)
     need = recording_bytes(n_steps, n_realizations, nc, recording, len(fields))
     if need > max_bytes:
-        raise ParameterError(
+        raise RecordingSizeError(
             f"recording {len(fields)} field(s) x {n_realizations} realisations x {n_samples} "
             f"samples needs {need / 2**30:.2f} GiB > max_bytes {max_bytes / 2**30:.2f} GiB; "
             "raise decimate, record fewer fields, use dtype=float32 or raise max_bytes"

@@ -139,6 +139,17 @@ CASES = [
     ("linearize --alpha 1e300", ["alpha", "[9.81e-05, 9.81e+05] 1/s^2", "pendulum length"]),
     ("linearize --alpha 1e-300", ["alpha", "[9.81e-05, 9.81e+05] 1/s^2"]),
     ("stability --beta 1e300", ["no characteristic root", "beta 1e+300"]),
+    # the long fuzz run's later findings
+    ("lyapunov --beta 1e300 --duration 0.2 --realizations 2", ["beta 1e+300", "float64"]),
+    (
+        "simulate --beta 20 --realizations 1000 --duration 1000 --out {d}/s.npz",
+        ["--realizations", "--decimate", "GiB"],
+    ),
+    ("experiment bots --trials 10001 --out {d}/b", ["--trials", "[1, 10000]"]),
+    (
+        "experiment bots --trial-duration 1e23 --out {d}/b",
+        ["--trial-duration", "estimated work", "--force"],
+    ),
 ]
 
 

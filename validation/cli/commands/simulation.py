@@ -9,6 +9,7 @@ import numpy as np
 from cipcore.atomic import WriteError
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
+from cipcore.schema import RecordingSizeError
 from validation.checks.divergence import (
     DIVERGED,
     LEFT_SMALL_ANGLE,
@@ -89,7 +90,14 @@ def cmd_simulate(a: argparse.Namespace) -> int:
                 f"--integrator {a.integrator}: engine {a.engine!r} steps with "
                 f"({', '.join(follows) or engine.capabilities.integrator})"
             )
-    traj = run_engine(a, engine.simulate, params, amplitude=a.amplitude, decimate=a.decimate, **kw)
+    try:
+        traj = run_engine(a, engine.simulate, params, amplitude=a.amplitude,
+                          decimate=a.decimate, **kw)  # fmt: skip
+    except RecordingSizeError as exc:
+        raise ParameterError(
+            f"--realizations x --duration / --decimate: {exc} (on the command line: raise "
+            "--decimate, or lower --realizations or --duration)"
+        ) from None
     try:
         traj.save_npz(a.out)
     except WriteError as exc:
