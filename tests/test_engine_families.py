@@ -181,3 +181,15 @@ def test_engines_json_stays_parseable_when_an_engine_prints_a_banner(tmp_path, c
     assert cap.out.strip(), f"nothing on stdout; stderr: {cap.err[-500:]}"
     res = json.loads(cap.out)
     assert rc == 0 and [r["engine"] for r in res["engines"]] == ["reduced", "mujoco-warp"]
+
+
+def test_the_engines_run_records_each_engines_package_versions():
+    """``cip-validate engines`` records the versions of what each engine imports (its
+    ``requires``: DART's dartpy) beside the core stack's; MuJoCo (the core, nothing
+    required) and a name not in the registry add nothing."""
+    dartpy = pytest.importorskip("dartpy")
+    from validation.cli.commands.engines import engine_versions
+
+    got = engine_versions(["dart", "mujoco", "no-such-engine"])
+    assert got["dartpy"] == dartpy.__version__, got
+    assert set(got) - {"commit"} == {"dartpy"}, got

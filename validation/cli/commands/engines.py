@@ -44,6 +44,42 @@ def run_record(started: dict | None = None) -> dict:
     return {**rec, "wall_s": round(time.monotonic() - started["t0"], 1), "load_end": load}
 
 
+def engine_versions(names: list[str]) -> dict[str, str]:
+    """The installed distributions (name -> version) of the modules each engine of
+    ``names`` declares it needs (``requires``; an engine not importable here is left out),
+    and ``commit``, the short git hash of cipval's source where it is a git checkout."""
+    import importlib
+    import subprocess
+    from importlib.metadata import packages_distributions, version
+    from pathlib import Path
+
+    from cipcore.registry import get_engine
+
+    dists = packages_distributions()
+    out: dict[str, str] = {}
+    for name in names:
+        try:
+            eng = get_engine(name)
+        except Exception:  # not installed here: its row says why
+            continue
+        for mod in getattr(eng, "requires", ()):
+            found = dists.get(mod.split(".")[0], ())
+            for dist in found:
+                out[dist] = version(dist)
+            if not found:  # a module its distribution does not list (pin's, under cmeel)
+                v = getattr(importlib.import_module(mod), "__version__", None)
+                if v is not None:
+                    out[mod] = str(v)
+    root = Path(__file__).resolve().parents[3]
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=5, check=True)  # fmt: skip
+        out["commit"] = head.stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return out
+
+
 @command(
     "Run every registered engine (or --engines) through the checks of `cip-validate run` (its "
     "exact twin, the delay, the rod, the declared model, the agreement with the reduced reference "
@@ -75,7 +111,8 @@ def cmd_engines(a: argparse.Namespace) -> int:
             results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
                                       integrator=a.integrator, selftest=a.selftest)  # fmt: skip
         env = run_environment()  # versions, platform, fingerprint: computed once
-        results["run"] = {**run_record(started), "versions": env["versions"]}
+        versions = {**env["versions"], **engine_versions(names)}
+        results["run"] = {**run_record(started), "versions": versions}
     except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
         from validation.cli.exitcodes import EXIT_CRASH
 
