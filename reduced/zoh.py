@@ -17,10 +17,12 @@ against.  Pure functions over numpy arrays.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.linalg
 
-__all__ = ["zoh_delayed_feedback", "zoh_matrices", "zoh_response"]
+__all__ = ["DelayedFeedback", "zoh_delayed_feedback", "zoh_matrices", "zoh_response"]
 
 
 def zoh_matrices(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
@@ -73,17 +75,37 @@ def zoh_response(
     return out
 
 
+@dataclass(frozen=True)
+class DelayedFeedback:
+    """The paper's delayed random-gain controllers (eq. (5)) as one value.
+
+    Parameters
+    ----------
+    errors : (C, n) the balancing errors' rows (m per state unit): e = errors @ x.
+    inputs : (m, C) which input each controller's force drives.
+    gain : M beta (N/m).
+    noise_scale : nu / sqrt(h), the random gain's spread per unit draw.
+    delay_steps : d = tau / h, >= 1.
+    """
+
+    errors: np.ndarray
+    inputs: np.ndarray
+    gain: float
+    noise_scale: float
+    delay_steps: int
+
+    def __post_init__(self) -> None:
+        if self.delay_steps < 1:
+            raise ValueError(f"delay_steps must be >= 1, got {self.delay_steps!r}")
+
+
 def zoh_delayed_feedback(
     ad: np.ndarray,
     bd: np.ndarray,
     x0: np.ndarray,
+    loop: DelayedFeedback,
     *,
-    errors: np.ndarray,
-    inputs: np.ndarray,
-    gain: float,
-    noise_scale: float,
     xi: np.ndarray,
-    delay_steps: int,
     e_before: np.ndarray,
 ) -> np.ndarray:
     """The exact sampled-data closed loop of the paper's eq. (5), forces held per interval.
@@ -98,28 +120,23 @@ def zoh_delayed_feedback(
     ----------
     ad, bd : (n, n), (n, m) the discrete plant over one hold interval h.
     x0 : (R, n) initial states.
-    errors : (C, n) the balancing errors' rows (m per state unit).
-    inputs : (m, C) which input each controller's force drives.
-    gain : M beta (N/m).
-    noise_scale : nu / sqrt(h), the random gain's spread per unit draw.
+    loop : the controllers (errors, inputs, gain, noise scale, delay d).
     xi : (R, K, C) standard-normal draws, one per interval and controller.
-    delay_steps : d = tau / h, >= 1.
     e_before : (R, C) the balancing errors held before t = 0 (m).
 
     Returns
     -------
     (R, K, n): the state at t = (k + 1) h for k = 0 .. K-1.
     """
-    if delay_steps < 1:
-        raise ValueError(f"delay_steps must be >= 1, got {delay_steps!r}")
+    d, errors = loop.delay_steps, loop.errors
     x = np.array(x0, dtype=float)
     r, k_total, _ = xi.shape
-    hist = np.empty((r, delay_steps + k_total, errors.shape[0]))
-    hist[:, :delay_steps] = e_before[:, None]  # steps -d .. -1
+    hist = np.empty((r, d + k_total, errors.shape[0]))
+    hist[:, :d] = e_before[:, None]  # steps -d .. -1
     out = np.empty((r, k_total, x.shape[1]))
     for k in range(k_total):
-        hist[:, delay_steps + k] = x @ errors.T  # step k
-        f = gain * (1.0 + noise_scale * xi[:, k]) * hist[:, k]  # e at step k - d
-        x = x @ ad.T + (f @ inputs.T) @ bd.T
+        hist[:, d + k] = x @ errors.T  # step k
+        f = loop.gain * (1.0 + loop.noise_scale * xi[:, k]) * hist[:, k]  # e at step k - d
+        x = x @ ad.T + (f @ loop.inputs.T) @ bd.T
         out[:, k] = x
     return out

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cipcore.params import BalanceParams
-from reduced.zoh import zoh_delayed_feedback
+from reduced.zoh import DelayedFeedback, zoh_delayed_feedback
 from validation.checks.closed_loop import closed_loop_check, substepped
 from validation.checks.refinement import FLOOR
 from validation.profiles import PAPER_BETA
@@ -27,10 +27,8 @@ def _check(model: str, fault=None, seed: int = 1, engine=None):
 
     eng = engine or _refinement_mujoco()
     f = make_fault(*fault) if fault else None
-    backend = f.backend(eng.rollout()) if f else None
     return closed_loop_check(model, model_file(model), eng, seed,
-                             params=BalanceParams(beta=PAPER_BETA[model]), fault=f,
-                             backend=backend)  # fmt: skip
+                             params=BalanceParams(beta=PAPER_BETA[model]), fault=f)  # fmt: skip
 
 
 def test_the_sampled_loop_is_the_scalar_recursion():
@@ -39,9 +37,8 @@ def test_the_sampled_loop_is_the_scalar_recursion():
     a, b, g, s, d = np.array([[1.1]]), np.array([[0.5]]), -2.0, 0.3, 2
     xi = np.array([[[0.4], [-1.0], [2.0]]])
     x0 = np.array([[1.0]])
-    got = zoh_delayed_feedback(a, b, x0, errors=np.eye(1), inputs=np.eye(1), gain=g,
-                               noise_scale=s, xi=xi, delay_steps=d,
-                               e_before=np.array([[0.7]]))[0, :, 0]  # fmt: skip
+    loop = DelayedFeedback(np.eye(1), np.eye(1), gain=g, noise_scale=s, delay_steps=d)
+    got = zoh_delayed_feedback(a, b, x0, loop, xi=xi, e_before=np.array([[0.7]]))[0, :, 0]
     x, hist, want = 1.0, [0.7, 0.7], []
     for k in range(3):
         hist.append(x)
@@ -49,8 +46,7 @@ def test_the_sampled_loop_is_the_scalar_recursion():
         want.append(x)
     np.testing.assert_allclose(got, want, rtol=1e-15)
     with pytest.raises(ValueError, match="delay_steps"):
-        zoh_delayed_feedback(a, b, x0, errors=np.eye(1), inputs=np.eye(1), gain=g,
-                             noise_scale=s, xi=xi, delay_steps=0, e_before=x0)  # fmt: skip
+        DelayedFeedback(np.eye(1), np.eye(1), gain=g, noise_scale=s, delay_steps=0)
 
 
 def test_substepped_steps_the_interval_in_halves():

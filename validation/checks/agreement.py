@@ -1266,8 +1266,9 @@ def instrument_checks(
                 refinement.refinement_check(model, m, eng, seed, backend=backend, threads=threads)
             )
         if judged == refinement.REFINEMENT:  # the controller's path, which no twin checks
-            checks.append(closed_loop_check(model, m, eng, seed, params=p, fault=fault,
-                                            backend=backend, threads=threads))  # fmt: skip
+            checks.append(
+                closed_loop_check(model, m, eng, seed, params=p, fault=fault, threads=threads)
+            )
         expected = round(p.tau / m.opt.timestep)
         got = measured_delay(model, pe, phys, m, backend)
         checks.append(

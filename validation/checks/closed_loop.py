@@ -41,6 +41,7 @@ without 1/sqrt(dt) 0.17 and 0.25, the two balancers sharing one noise stream 0.3
 from __future__ import annotations
 
 import copy
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -48,7 +49,23 @@ import numpy as np
 from validation.checks import refinement
 from validation.checks.refinement import Refinement, RefinementSetting
 
-__all__ = ["closed_loop_check", "refine_closed_loop", "substepped"]
+__all__ = ["EngineLoop", "closed_loop_check", "refine_closed_loop", "substepped"]
+
+
+@dataclass(frozen=True)
+class EngineLoop:
+    """The engine's side of the closed loop, as one value.
+
+    ``backend``: its :class:`cip.runner.RolloutBackend` class (a fault's wraps it);
+    ``params`` (:class:`cipcore.params.BalanceParams`) the controller it runs (a fault's
+    may differ from the suite's); ``xi`` (R, K, C) the draws it gets (None: the seed's);
+    ``threads`` the rollout's threads.
+    """
+
+    backend: type
+    params: object
+    xi: np.ndarray | None = None
+    threads: int = 1
 
 
 def substepped(base: type, sub: int) -> type:
@@ -101,25 +118,22 @@ def _engine_run(model, m, physical, params, backend, xi, amplitude, obs, threads
 def refine_closed_loop(
     model: str,
     m: mujoco.MjModel,
-    backend: type,
+    engine: EngineLoop,
     *,
     params,
-    engine_params,
-    engine_xi: np.ndarray | None,
     rod: str,
     setting: RefinementSetting,
-    threads: int = 1,
 ) -> Refinement:
     """The engine's closed loop at steps h .. h / 2**(levels-1) against the exact one.
 
     ``params`` (:class:`cipcore.params.BalanceParams`): the suite's controller, the
-    reference's; ``engine_params`` and ``engine_xi`` (R, K, C) the engine's (a fault's;
-    None: the seed's draws).  ``m`` is the compiled model file, its time step h = dt.
+    reference's; ``engine`` the engine's side (its rollout, controller and draws: a
+    fault's may differ).  ``m`` is the compiled model file, its time step h = dt.
     """
     from cip.linearize import rod_jacobians
     from cip.mjcf_params import read_mapping
     from cipcore.noise import GainNoise
-    from reduced.zoh import zoh_delayed_feedback, zoh_matrices
+    from reduced.zoh import DelayedFeedback, zoh_delayed_feedback, zoh_matrices
 
     h = float(m.opt.timestep)
     physical = read_mapping(m).physical()
@@ -136,15 +150,19 @@ def refine_closed_loop(
     inputs[motors, np.arange(nc)] = 1.0
     length = physical.pendulum_length
     hinge = [int(np.flatnonzero(row)[0]) for row in obs[1::2]]
+    loop = DelayedFeedback(
+        errors,
+        inputs,
+        gain=physical.cart_mass * params.beta,
+        noise_scale=params.noise_scale,
+        delay_steps=params.delay_steps,
+    )
 
     def exact(theta0: float) -> np.ndarray:
         x0 = np.zeros((r_n, a.shape[0]))
         x0[:, hinge] = theta0
-        y = zoh_delayed_feedback(
-            ad, bd, x0, errors=errors, inputs=inputs, gain=physical.cart_mass * params.beta,
-            noise_scale=params.noise_scale, xi=xi, delay_steps=params.delay_steps,
-            e_before=np.full((r_n, nc), length * np.sin(theta0)),
-        )  # fmt: skip
+        e_before = np.full((r_n, nc), length * np.sin(theta0))
+        y = zoh_delayed_feedback(ad, bd, x0, loop, xi=xi, e_before=e_before)
         return y[..., : m.nq] @ obs.T
 
     # the loop is linear in the state: tilt so that the largest |e| is the amplitude
@@ -152,13 +170,14 @@ def refine_closed_loop(
     peak = float(np.abs(exact(unit)[..., 1::2]).max())
     theta0 = unit * setting.amplitude / peak
     ref = exact(theta0)
-    xi_e = xi if engine_xi is None else engine_xi
+    xi_e = xi if engine.xi is None else engine.xi
     runs, steps = [], []
     for lev in range(setting.levels):
         sub = 2**lev
         steps.append(h / sub)
-        runs.append(_engine_run(model, m, physical, engine_params, substepped(backend, sub),
-                                xi_e, length * np.sin(theta0), obs, threads))  # fmt: skip
+        runs.append(_engine_run(model, m, physical, engine.params,
+                                substepped(engine.backend, sub), xi_e,
+                                length * np.sin(theta0), obs, engine.threads))  # fmt: skip
     return refinement.compare(runs, ref, steps)
 
 
@@ -170,15 +189,14 @@ def closed_loop_check(
     *,
     params,
     fault=None,
-    backend=None,
     threads: int | None = None,
 ):
     """The ``closed_loop.<model>`` check of ``engine`` on the compiled model file ``m``.
 
     ``params``: the suite's controller (its dt the file's time step); ``fault`` (a
-    :class:`validation.faults.catalogue.Fault`) gives the engine other parameters or
-    draws, ``backend`` the engine's rollout class (a fault wraps it; default its own).
-    The precision setting and floor are the open-loop check's.
+    :class:`validation.faults.catalogue.Fault`) gives the engine other parameters,
+    draws or a rollout that carries it (wrapping the engine's own).  The precision
+    setting and floor are the open-loop check's.
     """
     from cipcore.models import get_model
     from validation.checks.stats import FAIL, PASS, Check
@@ -189,16 +207,15 @@ def closed_loop_check(
     setting = RefinementSetting(seed, window=ps.window, amplitude=ps.amplitude)
     nc = get_model(model).n_controllers
     k_int = round(ps.window / m.opt.timestep)
-    engine_params, engine_xi = params, None
+    side = EngineLoop(engine.rollout(), params,
+                      threads=max(1, min(threads or 1, setting.n_realizations)))  # fmt: skip
     if fault is not None:
-        engine_params = fault.engine_params(params)
         noise = fault.noise(seed, setting.n_realizations, nc, k_int)
-        engine_xi = None if noise is None else noise.next_chunk(k_int)
-    r = refine_closed_loop(
-        model, m, backend or engine.rollout(), params=params, engine_params=engine_params,
-        engine_xi=engine_xi, rod=rod, setting=setting,
-        threads=max(1, min(threads or 1, setting.n_realizations)),
-    )  # fmt: skip
+        xi = None if noise is None else noise.next_chunk(k_int)
+        side = EngineLoop(
+            fault.backend(side.backend), fault.engine_params(params), xi, side.threads
+        )
+    r = refine_closed_loop(model, m, side, params=params, rod=rod, setting=setting)
     integrator = refinement.m_integrator(m) if len(getattr(engine, "integrators", ())) > 1 else None
     need = refinement.least_order(caps, integrator)
     ok = r.passes(ps.floor, need)
