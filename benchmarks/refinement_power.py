@@ -10,6 +10,15 @@ then, at one seed, the engine with each fault of ``--faults`` at the sizes of
         [--faults mass_ratio,pendulum_length,gravity,tip_damping,cart_damping]
         [--sizes 1e-3,1e-4,1e-5,1e-6]
 
+With ``--closed-loop``, the same table for the closed-loop check
+(:func:`validation.checks.closed_loop.closed_loop_check`: the engine under cipval's
+delayed random-gain controller, at the engine's own precision setting, float32 or
+float64) instead of the open-loop one, the clean rows and each fault at ``--fault-seeds``
+seeds (flagged when every seed fails):
+
+    python benchmarks/refinement_power.py --closed-loop --engines physx
+        --faults tip_damping,cart_damping --sizes 1e-3,3e-4,1e-4 --seeds 5 --fault-seeds 3
+
 With ``--float32``, the float32 table instead (the float32 setting of
 :data:`validation.checks.refinement.FLOAT32_SETTINGS`): for each engine of
 ``--engines`` (``mujoco-float32`` is the float32 stand-in,
@@ -52,7 +61,12 @@ def main() -> None:
     ap.add_argument("--fault-seeds", type=int, default=20, help="--float32: seeds per fault")
     ap.add_argument("--fault-amplitudes", default="setting",
                     help="--float32: amplitudes (m) of the fault rows, or 'setting'")  # fmt: skip
+    ap.add_argument("--closed-loop", action="store_true",
+                    help="the closed-loop check's table (docstring)")  # fmt: skip
     a = ap.parse_args()
+    if a.closed_loop:
+        closed_loop_table(a)
+        return
     if a.float32:
         float32_table(a)
         return
@@ -103,6 +117,52 @@ def main() -> None:
                             flagged.append(size)
                     smallest = f"{min(flagged):g}" if flagged else "none"
                     print(f"  {kind}: smallest flagged {smallest}", flush=True)
+
+
+def closed_loop_table(a: argparse.Namespace) -> None:
+    """The ``--closed-loop`` table (module docstring): clean at ``--seeds`` seeds, then
+    each fault and size at ``--fault-seeds`` seeds, and the smallest size flagged at every
+    seed."""
+    from cipcore.params import BalanceParams
+    from validation.checks.agreement import model_file
+    from validation.checks.closed_loop import closed_loop_check
+    from validation.faults.catalogue import make_fault
+    from validation.profiles import PAPER_BETA
+
+    print(f"# load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
+    for name in a.engines.split(","):
+        eng = _engine(name)
+        if eng is None:
+            continue
+        for model in a.models.split(","):
+            m = model_file(model)
+            p = BalanceParams(beta=PAPER_BETA[model])
+            t0 = time.perf_counter()
+            cs = [closed_loop_check(model, m, eng, s, params=p) for s in range(1, a.seeds + 1)]
+            e0 = [c.values["e0"] for c in cs]
+            hi = [c.values["e0_interval"][1] for c in cs]
+            fails = sum(c.status != "pass" for c in cs)
+            print(f"{name} {model}: clean at {a.seeds} seeds: {fails} false failures; E0 median "
+                  f"{np.median(e0):.2g}, max {max(e0):.2g}; upper end max {max(hi):.2g}; floor "
+                  f"{cs[0].values['floor']:g}; {(time.perf_counter() - t0) / a.seeds:.1f} s a "
+                  "check", flush=True)  # fmt: skip
+            for kind in a.faults.split(","):
+                flagged = []
+                for size in (float(x) for x in a.sizes.split(",")):
+                    f = make_fault(kind, size)
+                    if f.not_applicable(eng) or model not in f.models:
+                        continue
+                    fc = [closed_loop_check(model, m, eng, s, params=p, fault=f)
+                          for s in range(1, a.fault_seeds + 1)]  # fmt: skip
+                    n_fail = sum(c.status == "fail" for c in fc)
+                    lo = min(c.values["e0"] for c in fc)
+                    up = min(c.values["e0_interval"][0] for c in fc)
+                    print(f"  {kind} {size:g}: E0 >= {lo:.2g}, interval's lower end >= {up:.2g}; "
+                          f"{n_fail} of {a.fault_seeds} seeds fail", flush=True)  # fmt: skip
+                    if n_fail == a.fault_seeds:
+                        flagged.append(size)
+                smallest = f"{min(flagged):g}" if flagged else "none"
+                print(f"  {kind}: smallest flagged at every seed {smallest}", flush=True)
 
 
 #: float32 engines not (yet) in the registry, by name: the module holding ``ENGINE``
