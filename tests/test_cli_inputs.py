@@ -139,6 +139,8 @@ CASES = [
     ("linearize --alpha 1e300", ["alpha", "[9.81e-05, 9.81e+05] 1/s^2", "pendulum length"]),
     ("linearize --alpha 1e-300", ["alpha", "[9.81e-05, 9.81e+05] 1/s^2"]),
     ("stability --beta 1e300", ["no characteristic root", "beta 1e+300"]),
+    # the fourth long run: a bob below MuJoCo's mjMINVAL was a traceback from its compiler
+    ("linearize --mass-ratio 4.4e-188", ["--mass-ratio", "[1e-12, 1]"]),
     # the long fuzz run's later findings
     ("lyapunov --beta 1e300 --duration 0.2 --realizations 2", ["beta 1e+300", "float64"]),
     (

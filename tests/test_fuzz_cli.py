@@ -356,9 +356,9 @@ def declared_valid(d: Domain, text: str) -> bool | None:
                 and _in_range(edge, lo) and _in_range(edge, hi))  # fmt: skip
     if d.kind == "text":
         return bool(text.strip())
-    if d.kind == "command":
+    if d.kind == "command":  # not blank (Python's whitespace, \x1c-\x1f too), then shlex
         try:
-            return bool(shlex.split(text))
+            return bool(text.strip()) and bool(shlex.split(text))
         except ValueError:
             return False
     if d.kind in ("in-file", "in-path", "out-file", "out-dir"):
@@ -534,6 +534,7 @@ def _check_invalid(o: Outcome, argv: list[str], action: argparse.Action) -> None
 @example(data=None, pick=("run", "--workers", "--"))  # long run: argparse stored [], ran
 @example(data=None, pick=("experiment serve", "--out", "--"))  # long run: the oracle's
 @example(data=None, pick=("case export", "--mjcf", "/tmp/" + "\u00e9" * 300))  # ENAMETOOLONG
+@example(data=None, pick=("baseline", "--engine-cmd", "\x1f"))  # long run: the oracle's blank
 def test_declared_invalid_values_are_one_line_exit_2(places, data, pick):
     """A value outside its declared domain: exit 2, one line naming the option; every
     value: no traceback, an allowed status, nothing written outside --out."""

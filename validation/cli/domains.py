@@ -428,7 +428,8 @@ DOMAINS: dict[str, Domain] = {d.name: d for d in (
     Domain("workers", "int", "", 1, max_workers(), bound=_W),
     Domain("amplitude", "float", "m"),
     Domain("rod length", "float", "m", 0.0, 100.0, low_open=True),
-    Domain("mass ratio", "float", "", 0.0, 1.0, low_open=True),
+    # m/M, the cart 1 kg: MuJoCo refuses a bob lighter than its mjMINVAL (1e-15 kg)
+    Domain("mass ratio", "float", "", 1e-12, 1.0),
     Domain("decimate", "int", "", 1, 1_000_000),
     Domain("fps", "float", "1/s", 0.0, 1000.0, low_open=True),
     Domain("pixels", "int", "pixels", 1, 4096),
