@@ -316,6 +316,15 @@ def _int_ok(d: Domain, text: str) -> bool:
 
 
 def _path_ok(d: Domain, text: str) -> bool:
+    try:
+        return _path_lookup_ok(d, text)
+    except OSError:  # a name the system cannot look up (too long: ENAMETOOLONG): unusable
+        return False
+
+
+def _path_lookup_ok(d: Domain, text: str) -> bool:
+    """:func:`_path_ok`'s lookups (each may raise OSError: Python 3.11's ``is_dir`` lets
+    ENAMETOOLONG through)."""
     p = Path(text)
     if not text.strip():
         return False
@@ -327,10 +336,7 @@ def _path_ok(d: Domain, text: str) -> bool:
         return False
     test = {"in-file": p.is_file, "in-path": p.exists, "out-file": lambda: not p.is_dir(),
             "out-dir": lambda: not p.exists() or p.is_dir()}[d.kind]  # fmt: skip
-    try:
-        return test()
-    except OSError:  # a name the system cannot look up (too long: ENAMETOOLONG): unusable
-        return False
+    return test()
 
 
 def declared_valid(d: Domain, text: str) -> bool | None:
@@ -535,12 +541,13 @@ def _check_invalid(o: Outcome, argv: list[str], action: argparse.Action) -> None
 @example(data=None, pick=("experiment serve", "--out", "--"))  # long run: the oracle's
 @example(data=None, pick=("case export", "--mjcf", "/tmp/" + "\u00e9" * 300))  # ENAMETOOLONG
 @example(data=None, pick=("baseline", "--engine-cmd", "\x1f"))  # long run: the oracle's blank
+@example(data=None, pick=("sweep-export", "dataset", "/tmp/" + "\u00e9" * 300))  # is_dir raised
 def test_declared_invalid_values_are_one_line_exit_2(places, data, pick):
     """A value outside its declared domain: exit 2, one line naming the option; every
     value: no traceback, an allowed status, nothing written outside --out."""
     if data is None:  # an explicit example: (command, option, value)
-        command, flag, value = pick
-        action = next(a for a in _options(command) if flag in a.option_strings)
+        command, flag, value = pick  # an option's flag, or a positional's dest
+        action = next(a for a in _options(command) if flag in (*a.option_strings, a.dest))
     else:
         command, action = pick
         value = data.draw(values_for(action, places), label=_name(action))

@@ -345,16 +345,16 @@ def _path(value: str, domain: Domain) -> str:
     if "\x00" in value:
         raise DomainError(f"must be {domain.describe()}, got a name with a NUL byte")
     p = Path(value)
-    if (
-        domain.suffixes
-        and p.suffix.lower() not in domain.suffixes
-        and not (domain.kind == "in-path" and p.is_dir())
-    ):
-        raise DomainError(f"must name a {' or '.join(domain.suffixes)} file, got {value!r}")
-    try:
+    try:  # Python 3.11's is_dir lets ENAMETOOLONG through: every lookup inside
         exists, is_dir, is_file = p.exists(), p.is_dir(), p.is_file()
     except OSError as exc:  # a name too long for the file system
         raise DomainError(f"cannot use {value!r} ({exc.strerror or exc})") from None
+    if (
+        domain.suffixes
+        and p.suffix.lower() not in domain.suffixes
+        and not (domain.kind == "in-path" and is_dir)
+    ):
+        raise DomainError(f"must name a {' or '.join(domain.suffixes)} file, got {value!r}")
     if domain.kind == "in-file" and not is_file:
         if is_dir:
             raise DomainError(f"{value!r} is a directory, expected a file")
