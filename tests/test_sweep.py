@@ -48,6 +48,16 @@ def test_dataset_has_a_dimension_per_parameter_and_attributes(tmp_path):
     assert float(small.max()) < 0.01
 
 
+def test_a_seed_beyond_int32_is_stored(tmp_path):
+    """The long fuzz run: a seed of 2663081240 (> 2^31 - 1) ended the sweep in xarray's
+    int32 cast of the NetCDF3 attribute; the seed is stored as text, in full."""
+    seed = 2**63 - 1
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0]},
+                        duration=0.05, seed=seed)  # fmt: skip
+    ds = open_ds(run_sweep(study, tmp_path / "s", pool=SweepPool(workers=1)).dataset_path)
+    assert int(ds.attrs["seed"]) == seed and json.loads(ds.attrs["study"])["seed"] == seed
+
+
 def test_seeds_per_point_do_not_depend_on_order_or_workers(tmp_path):
     study = small_study()
     seeds = {point_seed(study, p) for p in study.points()}

@@ -213,7 +213,8 @@ def assemble(study: Study, results: Iterable[tuple[dict, dict]]):
         "title": f"cipval parameter study {study.name}",
         "study": json.dumps(study.as_dict()),
         "fingerprint": study.fingerprint(),
-        "seed": study.seed,
+        # text: a NetCDF3 attribute holds int32 at most, a seed up to 2^63 - 1
+        "seed": str(study.seed),
         "seed_rule": "common random numbers" if study.common_random_numbers
         else "SeedSequence(seed, spawn_key=(crc32(point json without model),))",
         "versions": json.dumps(package_versions()),
