@@ -73,7 +73,6 @@ def main() -> None:
     from cipcore.registry import get_engine
     from validation.checks.agreement import model_file
     from validation.checks.refinement import refinement_check
-    from validation.faults.catalogue import make_fault
 
     print(f"# load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
     for name in a.engines.split(","):
@@ -100,12 +99,9 @@ def main() -> None:
                       f"median {np.median(e0):.2g}, max {max(e0):.2g}; interval's upper end max "
                       f"{max(hi):.2g}; order {min(p):.3f}-{max(p):.3f}; {dt:.1f} s a check",
                       flush=True)  # fmt: skip
-                for kind in a.faults.split(","):
+                for kind, sized in _faults(a, eng, model):
                     flagged = []
-                    for size in (float(s) for s in a.sizes.split(",")):
-                        f = make_fault(kind, size)
-                        if f.not_applicable(eng) or model not in f.models:
-                            continue
+                    for size, f in sized:
                         c = refinement_check(model, m, eng, 1, backend=f.backend(eng.rollout()))
                         print(
                             f"  {kind} {size:g}: E0 {c.values['e0']:.2g} "
@@ -126,43 +122,55 @@ def closed_loop_table(a: argparse.Namespace) -> None:
     from cipcore.params import BalanceParams
     from validation.checks.agreement import model_file
     from validation.checks.closed_loop import closed_loop_check
-    from validation.faults.catalogue import make_fault
     from validation.profiles import PAPER_BETA
 
+    for name, eng, model in _engine_models(a):
+        m = model_file(model)
+        p = BalanceParams(beta=PAPER_BETA[model])
+        t0 = time.perf_counter()
+        cs = [closed_loop_check(model, m, eng, s, params=p) for s in range(1, a.seeds + 1)]
+        e0 = [c.values["e0"] for c in cs]
+        hi = [c.values["e0_interval"][1] for c in cs]
+        fails = sum(c.status != "pass" for c in cs)
+        print(f"{name} {model}: clean at {a.seeds} seeds: {fails} false failures; E0 median "
+              f"{np.median(e0):.2g}, max {max(e0):.2g}; upper end max {max(hi):.2g}; floor "
+              f"{cs[0].values['floor']:g}; {(time.perf_counter() - t0) / a.seeds:.1f} s a "
+              "check", flush=True)  # fmt: skip
+        for kind, sized in _faults(a, eng, model):
+            flagged = []
+            for size, f in sized:
+                fc = [closed_loop_check(model, m, eng, s, params=p, fault=f)
+                      for s in range(1, a.fault_seeds + 1)]  # fmt: skip
+                n_fail = sum(c.status == "fail" for c in fc)
+                lo = min(c.values["e0"] for c in fc)
+                up = min(c.values["e0_interval"][0] for c in fc)
+                print(f"  {kind} {size:g}: E0 >= {lo:.2g}, interval's lower end >= {up:.2g}; "
+                      f"{n_fail} of {a.fault_seeds} seeds fail", flush=True)  # fmt: skip
+                if n_fail == a.fault_seeds:
+                    flagged.append(size)
+            smallest = f"{min(flagged):g}" if flagged else "none"
+            print(f"  {kind}: smallest flagged at every seed {smallest}", flush=True)
+
+
+def _faults(a: argparse.Namespace, eng, model: str):
+    """(kind, [(size, fault), ...]) for each fault of ``--faults``: its sizes of
+    ``--sizes`` that apply to the engine and model."""
+    from validation.faults.catalogue import make_fault
+
+    for kind in a.faults.split(","):
+        faults = [(size, make_fault(kind, size)) for size in map(float, a.sizes.split(","))]
+        yield kind, [(z, f) for z, f in faults if not f.not_applicable(eng) and model in f.models]
+
+
+def _engine_models(a: argparse.Namespace):
+    """(engine name, engine, model) for each engine of ``--engines`` that can run here and
+    each model of ``--models``, after a line with the load."""
     print(f"# load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
     for name in a.engines.split(","):
         eng = _engine(name)
-        if eng is None:
-            continue
-        for model in a.models.split(","):
-            m = model_file(model)
-            p = BalanceParams(beta=PAPER_BETA[model])
-            t0 = time.perf_counter()
-            cs = [closed_loop_check(model, m, eng, s, params=p) for s in range(1, a.seeds + 1)]
-            e0 = [c.values["e0"] for c in cs]
-            hi = [c.values["e0_interval"][1] for c in cs]
-            fails = sum(c.status != "pass" for c in cs)
-            print(f"{name} {model}: clean at {a.seeds} seeds: {fails} false failures; E0 median "
-                  f"{np.median(e0):.2g}, max {max(e0):.2g}; upper end max {max(hi):.2g}; floor "
-                  f"{cs[0].values['floor']:g}; {(time.perf_counter() - t0) / a.seeds:.1f} s a "
-                  "check", flush=True)  # fmt: skip
-            for kind in a.faults.split(","):
-                flagged = []
-                for size in (float(x) for x in a.sizes.split(",")):
-                    f = make_fault(kind, size)
-                    if f.not_applicable(eng) or model not in f.models:
-                        continue
-                    fc = [closed_loop_check(model, m, eng, s, params=p, fault=f)
-                          for s in range(1, a.fault_seeds + 1)]  # fmt: skip
-                    n_fail = sum(c.status == "fail" for c in fc)
-                    lo = min(c.values["e0"] for c in fc)
-                    up = min(c.values["e0_interval"][0] for c in fc)
-                    print(f"  {kind} {size:g}: E0 >= {lo:.2g}, interval's lower end >= {up:.2g}; "
-                          f"{n_fail} of {a.fault_seeds} seeds fail", flush=True)  # fmt: skip
-                    if n_fail == a.fault_seeds:
-                        flagged.append(size)
-                smallest = f"{min(flagged):g}" if flagged else "none"
-                print(f"  {kind}: smallest flagged at every seed {smallest}", flush=True)
+        if eng is not None:
+            for model in a.models.split(","):
+                yield name, eng, model
 
 
 #: float32 engines not (yet) in the registry, by name: the module holding ``ENGINE``
@@ -218,46 +226,37 @@ def float32_table(a: argparse.Namespace) -> None:
     (clean by amplitude, faults by size, the smallest flagged size) in one pass."""
     from validation.checks.agreement import model_file
     from validation.checks.refinement import FLOAT32_SETTINGS
-    from validation.faults.catalogue import make_fault
 
-    print(f"# load {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
-    for name in a.engines.split(","):
-        eng = _engine(name)
-        if eng is None:
-            continue
-        for model in a.models.split(","):
-            s = FLOAT32_SETTINGS[model]
-            m = model_file(model)
-            print(f"{name} {model}: float32 setting |e| {s.amplitude:g} m, {s.window:g} s, floor "
-                  f"{s.floor:g}", flush=True)  # fmt: skip
-            for amp in (float(x) for x in a.amplitudes.split(",")):
-                t0 = time.perf_counter()
-                r = np.array(_runs(model, m, eng, eng.rollout(), amp, s.window, a.seeds))
-                dt = (time.perf_counter() - t0) / a.seeds
-                print(f"  clean |e| {amp:g} m: E0 median {np.median(r[:, 0]):.2g}, max "
-                      f"{r[:, 0].max():.2g}; upper end max {r[:, 1].max():.2g}; order "
-                      f"{r[:, 2].min():.3f}-{r[:, 2].max():.3f}; {int((r[:, 3] == 0).sum())}/"
-                      f"{a.seeds} fail the floor; {dt:.1f} s a run", flush=True)  # fmt: skip
-            amps = [s.amplitude] if a.fault_amplitudes == "setting" else [
-                float(x) for x in a.fault_amplitudes.split(",")]  # fmt: skip
-            for amp in amps:
-                for kind in a.faults.split(","):
-                    flagged = []
-                    for size in (float(x) for x in a.sizes.split(",")):
-                        f = make_fault(kind, size)
-                        if f.not_applicable(eng) or model not in f.models:
-                            continue
-                        r = np.array(_runs(model, m, eng, f.backend(eng.rollout()), amp, s.window,
-                                           a.fault_seeds))  # fmt: skip
-                        n_flag = int((r[:, 3] == 0).sum())
-                        print(f"  {kind} {size:g} at |e| {amp:g} m: E0 {r[:, 0].min():.2g}-"
-                              f"{r[:, 0].max():.2g}, upper end min {r[:, 1].min():.2g}; flagged "
-                              f"{n_flag}/{a.fault_seeds}", flush=True)  # fmt: skip
-                        if n_flag == a.fault_seeds:
-                            flagged.append(size)
-                    smallest = f"{min(flagged):g}" if flagged else "none"
-                    print(f"  {kind} at |e| {amp:g} m: smallest flagged at every seed {smallest}",
-                          flush=True)  # fmt: skip
+    for name, eng, model in _engine_models(a):
+        s = FLOAT32_SETTINGS[model]
+        m = model_file(model)
+        print(f"{name} {model}: float32 setting |e| {s.amplitude:g} m, {s.window:g} s, floor "
+              f"{s.floor:g}", flush=True)  # fmt: skip
+        for amp in (float(x) for x in a.amplitudes.split(",")):
+            t0 = time.perf_counter()
+            r = np.array(_runs(model, m, eng, eng.rollout(), amp, s.window, a.seeds))
+            dt = (time.perf_counter() - t0) / a.seeds
+            print(f"  clean |e| {amp:g} m: E0 median {np.median(r[:, 0]):.2g}, max "
+                  f"{r[:, 0].max():.2g}; upper end max {r[:, 1].max():.2g}; order "
+                  f"{r[:, 2].min():.3f}-{r[:, 2].max():.3f}; {int((r[:, 3] == 0).sum())}/"
+                  f"{a.seeds} fail the floor; {dt:.1f} s a run", flush=True)  # fmt: skip
+        amps = [s.amplitude] if a.fault_amplitudes == "setting" else [
+            float(x) for x in a.fault_amplitudes.split(",")]  # fmt: skip
+        for amp in amps:
+            for kind, sized in _faults(a, eng, model):
+                flagged = []
+                for size, f in sized:
+                    r = np.array(_runs(model, m, eng, f.backend(eng.rollout()), amp, s.window,
+                                       a.fault_seeds))  # fmt: skip
+                    n_flag = int((r[:, 3] == 0).sum())
+                    print(f"  {kind} {size:g} at |e| {amp:g} m: E0 {r[:, 0].min():.2g}-"
+                          f"{r[:, 0].max():.2g}, upper end min {r[:, 1].min():.2g}; flagged "
+                          f"{n_flag}/{a.fault_seeds}", flush=True)  # fmt: skip
+                    if n_flag == a.fault_seeds:
+                        flagged.append(size)
+                smallest = f"{min(flagged):g}" if flagged else "none"
+                print(f"  {kind} at |e| {amp:g} m: smallest flagged at every seed {smallest}",
+                      flush=True)  # fmt: skip
 
 
 if __name__ == "__main__":
