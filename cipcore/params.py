@@ -83,6 +83,10 @@ def whole_steps(name: str, duration: float, dt: float) -> int:
     to within 1e-9 relative.
     """
     n = duration / dt
+    if not math.isfinite(n):  # a duration whose step count overflows float64
+        raise ParameterError(
+            f"{name} = {duration!r} s over dt = {dt!r} s is beyond any count of time steps"
+        )
     k = round(n)
     if abs(n - k) > 1e-9 * max(1.0, abs(n)):
         raise ParameterError(

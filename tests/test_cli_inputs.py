@@ -141,6 +141,12 @@ CASES = [
     ("stability --beta 1e300", ["no characteristic root", "beta 1e+300"]),
     # the fourth long run: a bob below MuJoCo's mjMINVAL was a traceback from its compiler
     ("linearize --mass-ratio 4.4e-188", ["--mass-ratio", "[1e-12, 1]"]),
+    # the long run at seed 1: a step count beyond float64 was an OverflowError
+    (
+        "experiment bots --trials 1 --mode single --trial-duration 1e306 --out {d}/b",
+        ["--trial-duration", "1e+306", "beyond any count of time steps"],
+    ),
+    ("lyapunov --beta 20 --duration 1e306", ["--duration", "beyond any count"]),
     # the long fuzz run's later findings
     ("lyapunov --beta 1e300 --duration 0.2 --realizations 2", ["beta 1e+300", "float64"]),
     (
