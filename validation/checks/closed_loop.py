@@ -207,14 +207,13 @@ def closed_loop_check(
     setting = RefinementSetting(seed, window=ps.window, amplitude=ps.amplitude)
     nc = get_model(model).n_controllers
     k_int = round(ps.window / m.opt.timestep)
-    side = EngineLoop(engine.rollout(), params,
-                      threads=max(1, min(threads or 1, setting.n_realizations)))  # fmt: skip
+    backend, engine_params, xi = engine.rollout(), params, None
     if fault is not None:
         noise = fault.noise(seed, setting.n_realizations, nc, k_int)
+        backend, engine_params = fault.backend(backend), fault.engine_params(params)
         xi = None if noise is None else noise.next_chunk(k_int)
-        side = EngineLoop(
-            fault.backend(side.backend), fault.engine_params(params), xi, side.threads
-        )
+    side = EngineLoop(backend, engine_params, xi,
+                      threads=max(1, min(threads or 1, setting.n_realizations)))  # fmt: skip
     r = refine_closed_loop(model, m, side, params=params, rod=rod, setting=setting)
     integrator = refinement.m_integrator(m) if len(getattr(engine, "integrators", ())) > 1 else None
     need = refinement.least_order(caps, integrator)
