@@ -352,6 +352,11 @@ def declared_valid(d: Domain, text: str) -> bool | None:
         items = [t.strip().lower() for t in text.split(",")]
         names = {n.lower() for n in d.names()}
         return all(items) and set(items) <= names and len(set(items)) == len(items)
+    if d.kind == "labels":  # d.count different labels, each of 1-32 [A-Za-z0-9_.-]
+        items = [t.strip() for t in text.split(",")]
+        ok = all(len(t) <= 32 and t and all(c.isascii() and (c.isalnum() or c in "_.-")
+                                            for c in t) for t in items)  # fmt: skip
+        return ok and len(items) == d.count and len(set(items)) == len(items)
     if d.kind == "grid":
         parts = text.split(":")
         if len(parts) != 3 or not _int_ok(Domain("n", "int", low=2, high=10_000), parts[2]):
@@ -422,6 +427,10 @@ def _domain_values(d: Domain, places: dict[str, str]) -> st.SearchStrategy[str]:
         if d.kind == "name":
             return one
         return st.lists(one, min_size=1, max_size=3).map(",".join)
+    if d.kind == "labels":
+        label = st.one_of(st.sampled_from(["A", "B", "b", "s1.x", "-", "a" * 32, "a" * 33]),
+                          st.text(max_size=4))  # fmt: skip
+        return st.lists(label, min_size=0, max_size=3).map(",".join)
     if d.kind == "grid":
         return st.tuples(st.floats(-1, 100), st.floats(-1, 100), st.integers(0, 20001)).map(
             lambda t: f"{t[0]!r}:{t[1]!r}:{t[2]}"
@@ -529,6 +538,9 @@ def _check_invalid(o: Outcome, argv: list[str], action: argparse.Action) -> None
 @example(data=None, pick=("lyapunov", "--tau", "11"))
 @example(data=None, pick=("experiment bots", "--trials", "0"))
 @example(data=None, pick=("experiment serve", "--port", "99999"))
+@example(data=None, pick=("experiment bots", "--subjects", "A,A"))
+@example(data=None, pick=("experiment bots", "--trial-duration", "1e4"))  # long: ran > 60 s
+@example(data=None, pick=("selftest", "--faults", "gravity,Gravity"))
 @example(data=None, pick=("sweep", "--scheduler", "nope:99999"))
 @example(data=None, pick=("engines", "--engines", "reduced,Reduced"))
 @example(data=None, pick=("contract", "--engine-cmd", "'unclosed"))
@@ -686,14 +698,36 @@ def _study_text(study: dict[str, str], tables: dict[str, dict[str, str]]) -> str
     return "\n".join(parts)
 
 
+def _study_keys() -> list[str]:
+    """Every key of the study schema (its ``[study]`` keys, the settings of ``[fixed]`` and
+    ``[grid]``, the keys of ``[gain]`` and ``[stcc]``) and one that is none of them."""
+    from validation.sweeps.mapping import SETTINGS
+    from validation.sweeps.study import STUDY_KEYS, TABLE_KEYS
+
+    keys = {*STUDY_KEYS, *SETTINGS, *(k for t in TABLE_KEYS.values() for k in t)}
+    return [*sorted(keys), "bogus"]
+
+
+def _typed_valid(d: Domain, value: object) -> bool | None:
+    """Is the TOML ``value`` in the number domain ``d`` (None: not a number domain)."""
+    if d.kind not in ("int", "float"):
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    if d.kind == "int" and not isinstance(value, int):
+        return False
+    return math.isfinite(value) and _in_range(d, value)
+
+
 @sized("study")
 @given(
     where=st.sampled_from(["study", "grid", "fixed", "gain", "stcc", "missing", "unknown"]),
-    key=st.sampled_from(["name", "model", "engine", "metrics", "realizations", "duration",
-                         "seed", "common_random_numbers", "decimate", "compare", "beta",
-                         "tau", "dt", "amplitude", "gains", "window", "bogus"]),
+    key=st.sampled_from(_study_keys()),
     value=st.sampled_from(TOML_VALUES),
 )  # fmt: skip
+@example(where="gain", key="gains", value="1")
+@example(where="stcc", key="dominance", value="2.5")
+@example(where="gain", key="half_width", value="-1")
 @example(where="study", key="metrics", value='"rms"')
 @example(where="missing", key="name", value='"x"')
 @example(where="study", key="duration", value="1e12")
@@ -702,8 +736,11 @@ def _study_text(study: dict[str, str], tables: dict[str, dict[str, str]]) -> str
 def test_generated_study_files_are_one_line_exit_2_naming_the_key(places, where, key, value):
     """Study files with wrong types and values: one line naming the file and the key, no
     traceback; a valid one loads (checked in this process, not run)."""
+    import tomllib
+
     from cipcore.params import ParameterError
-    from validation.sweeps.study import STUDY_KEYS, Study
+    from validation.cli.domains import DOMAINS
+    from validation.sweeps.study import STUDY_KEYS, TABLE_KEYS, Study
 
     study = dict(STUDY_BASE)
     tables = {"grid": {"beta": "[20.0]"}}
@@ -719,11 +756,19 @@ def test_generated_study_files_are_one_line_exit_2_naming_the_key(places, where,
     _count("study")
     path = work / "study.toml"
     path.write_text(_study_text(study, tables))
+    declared = TABLE_KEYS.get(where, {}).get(key)  # a [gain] / [stcc] key's domain
+    try:
+        typed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        typed = None
+    outside = declared is not None and _typed_valid(DOMAINS[declared], typed) is False
     try:
         Study.from_toml(path)
     except ParameterError as exc:
         msg = str(exc)
         assert "\n" not in msg and str(path) in msg, msg
+        if outside:  # refused for its declared domain, named as table.key
+            assert f"{where}.{key}" in msg, msg
         if where == "study" and key in STUDY_KEYS and "toml" not in msg.lower():
             assert key in msg, msg
         argv = ["sweep", str(path), "--out", str(work / "out" / "sw")]
@@ -734,6 +779,7 @@ def test_generated_study_files_are_one_line_exit_2_naming_the_key(places, where,
             assert "[study] duration" in o.err and "--duration" not in o.err, o.err
         return
     assert where not in ("missing", "unknown")
+    assert not outside, (where, key, value, "a value outside its declared domain loaded")
     if where == "study" and key == "duration" and value == "1e12":  # too much work
         argv = ["sweep", str(path), "--out", str(work / "out" / "sw")]
         o = run_cli(argv, work, budget=60.0)

@@ -22,7 +22,7 @@ from typing import Any, NoReturn
 from cipcore.models import MODEL_NAMES, get_model
 from cipcore.params import PAPER, BalanceParams, ParameterError, whole_steps
 from cipcore.registry import REFERENCE
-from validation.cli.domains import Domain, add_option
+from validation.cli.domains import add_option
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
 #: exit status after SIGINT / SIGTERM (128 + signal number, the shell's convention)
@@ -113,22 +113,6 @@ def usage_error(message: str) -> NoReturn:
     raise SystemExit(EXIT_USAGE)
 
 
-# ------------------------------------------------------------ value types
-# argparse types of the options declared in :mod:`validation.cli.domains`: each carries its
-# domain (``type.domain``), so the fuzz test and the docs read the same declaration
-positive_int = Domain("count", "int", low=1).converter()
-nonnegative_int = Domain("index", "int", low=0).converter()
-finite_float = Domain("number", "float").converter()
-positive_float = Domain("positive number", "float", low=0.0, low_open=True).converter()
-nonnegative_float = Domain("non-negative number", "float", low=0.0).converter()
-grid = Domain("grid", "grid").converter()
-
-
-def int_at_least(minimum: int):
-    """argparse type: an integer >= ``minimum``."""
-    return Domain(f"count >= {minimum}", "int", low=minimum).converter()
-
-
 # ---------------------------------------------------------- option groups
 def add_model_args(p: argparse.ArgumentParser, *, beta: bool = True) -> None:
     """--model and the reduced-model parameters (paper values as defaults)."""
@@ -169,11 +153,12 @@ def add_threads_arg(p: argparse.ArgumentParser, *, suite: bool = False) -> None:
                "results do not depend on it")  # fmt: skip
 
 
-def add_force_arg(p: argparse.ArgumentParser) -> None:
-    """--force: run past :data:`MAX_WORK` (:func:`check_work`'s bound)."""
+def add_force_arg(
+    p: argparse.ArgumentParser, bound: float = MAX_WORK, unit: str = "realisation-steps"
+) -> None:
+    """--force: run past ``bound`` (:func:`check_work`'s, or :func:`refuse_work`'s)."""
     p.add_argument("--force", action="store_true",
-                   help=f"run even when the estimated work exceeds {MAX_WORK:.0e} "
-                   "realisation-steps")  # fmt: skip
+                   help=f"run even when the estimated work exceeds {bound:.0e} {unit}")  # fmt: skip
 
 
 def add_engine_arg(
@@ -305,12 +290,26 @@ def check_work(
     """
     whole_steps(option, duration, dt)  # before any work: the engines step whole dt
     work = float(realizations) * runs * duration / dt + fixed
-    if work > MAX_WORK and not force:
-        plus = f" + {fixed:.3g} fixed" if fixed else ""
+    plus = f" + {fixed:.3g} fixed" if fixed else ""
+    how = f"{realizations} realisations x {runs} run(s) x {duration:g} s / dt {dt:g} s{plus}"
+    return refuse_work(option, work, how, force=force)
+
+
+def refuse_work(
+    option: str,
+    work: float,
+    how: str,
+    *,
+    bound: float = MAX_WORK,
+    unit: str = "realisation-steps",
+    force: bool = False,
+) -> float:
+    """``work`` (in ``unit``), or a one-line usage error naming ``option``, the estimate and
+    ``how`` it was reckoned, when it exceeds ``bound`` and ``force`` is not given."""
+    if work > bound and not force:
         raise ParameterError(
-            f"{option}: estimated work {work:.3g} realisation-steps "
-            f"({realizations} realisations x {runs} run(s) x {duration:g} s / dt {dt:g} s"
-            f"{plus}) exceeds {MAX_WORK:.0e}; lower it or pass --force"
+            f"{option}: estimated work {work:.3g} {unit} ({how}) exceeds {bound:.0e}; "
+            "lower it or pass --force"
         )
     return work
 

@@ -35,8 +35,12 @@ from typing import Any
 __all__ = ["DOMAINS", "Domain", "DomainError", "add_option", "domain_of", "option_table"]
 
 #: the kinds of input a domain declares
-KINDS = ("int", "float", "bool", "name", "names", "text", "command", "grid", "in-file", "in-path",
-         "out-file", "out-dir", "address")  # fmt: skip
+KINDS = ("int", "float", "bool", "name", "names", "labels", "text", "command", "grid", "in-file",
+         "in-path", "out-file", "out-dir", "address")  # fmt: skip
+#: A subject's label in the experiment (a recording's file name holds it): 1-32 of
+#: letters, digits, ``_``, ``.``, ``-``; used with ``fullmatch`` only (``$`` would let a
+#: trailing newline through).  The experiment's protocol reads it too.
+LABEL = re.compile(r"[A-Za-z0-9_.-]{1,32}")
 
 
 class DomainError(ValueError):
@@ -74,11 +78,15 @@ class Domain:
     suffixes
         File name endings of a path (``(".npz",)``), matched case-insensitively.
     bound
-        Why ``high`` is what it is, for the message and the docs (``"4 x the cores"``).
+        Why ``high`` is what it is, for the message and the docs. One that spells the
+        number (``"2^63 - 1"``) or is the machine's (``"4 x the cores here"``) stands in
+        the docs in place of the number; any other is a reason, given after the range.
     pair
         ``nargs=2``: two values, the first lower than the second (``--beta-range``).
     item
         What one name of a ``names`` list is (``"engine"``), for the message.
+    count
+        ``labels``: exactly this many, each matching :data:`LABEL`, all different.
     choices_of
         A function giving the names when they are known only at run time (the engine
         registry); called when the parser is built.
@@ -97,6 +105,7 @@ class Domain:
     pair: bool = False
     choices_of: Callable[[], tuple[str, ...]] | None = None
     item: str = ""
+    count: int = 0
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -109,11 +118,17 @@ class Domain:
             return self.choices
         return tuple(self.choices_of())
 
+    def _spells_high(self) -> bool:
+        """Whether ``bound`` spells the high end (``2^63 - 1``) or is the machine's (``4 x
+        the cores here``), rather than a reason for it."""
+        return self.bound[:1].isdigit() or self.bound.endswith(" here")
+
     def range_text(self, docs: bool = False) -> str:
         """The range in interval notation: ``(0, 1e6]``, ``>= 1``, ``finite``; with ``docs``
         a machine-dependent bound is given as its reason (``4 x the cores here``)."""
         lo, hi = self.low, self.high
-        if docs and self.bound and hi is not None:
+        if docs and self._spells_high() and hi is not None:
+            # the docs give the bound's spelling (``2^63 - 1``, ``4 x the cores here``)
             return f"{'(' if self.low_open else '['}{_num(lo)}, {self.bound}]"
         if lo is None and hi is None:
             return "finite"
@@ -127,7 +142,7 @@ class Domain:
     def describe(self, docs: bool = False) -> str:
         """The domain in words, as messages (and with ``docs``, the docs) say it."""
         unit = f" {self.unit}" if self.unit and self.kind in ("int", "float", "grid") else ""
-        bound = f" ({self.bound})" if self.bound and not docs else ""
+        bound = f" ({self.bound})" if self.bound and not (docs and self._spells_high()) else ""
         if self.kind == "int":
             rng = self.range_text(docs)
             text = f"an integer {'in ' if rng[0] in '[(' else ''}{rng}{unit}{bound}"
@@ -141,6 +156,9 @@ class Domain:
             text = f"one of {', '.join(self.names())}"
         elif self.kind == "names":
             text = f"a comma list of {', '.join(self.names())} (non-empty, each once)"
+        elif self.kind == "labels":
+            text = (f"{self.count} different {self.item or 'label'}s separated by a comma, each "
+                    "1-32 of A-Z a-z 0-9 _ . -")  # fmt: skip
         elif self.kind == "grid":
             text = (f"LOW:HIGH:N, {self.range_text()}{unit}, LOW < HIGH, N an integer in "
                     "[2, 10000]")  # fmt: skip
@@ -176,6 +194,8 @@ class Domain:
             return self.check(items)
         if self.kind == "grid":
             return self._grid(text)
+        if self.kind == "labels":
+            return self.check([t.strip() for t in text.split(",")])
         return self.check(text)
 
     def check(self, value: Any) -> Any:
@@ -191,6 +211,8 @@ class Domain:
             return value
         if self.kind == "names":
             return self._list(value)
+        if self.kind == "labels":
+            return self._labels(value)
         if not isinstance(value, str) or not value.strip():
             raise DomainError(f"must be {self.describe()}, got {value!r}")
         if self.kind == "address":
@@ -243,6 +265,15 @@ class Domain:
         if twice:
             raise DomainError(f"names {twice[0]!r} twice; give each once")
         return out
+
+    def _labels(self, value: Any) -> tuple[str, ...]:
+        ok = (isinstance(value, list | tuple) and len(value) == self.count
+              and all(isinstance(v, str) and LABEL.fullmatch(v) for v in value)
+              and len(set(value)) == len(value))  # fmt: skip
+        if not ok:
+            shown = ",".join(map(str, value)) if isinstance(value, list | tuple) else value
+            raise DomainError(f"must be {self.describe()}, got {shown!r}")
+        return tuple(value)
 
     def _grid(self, text: str) -> tuple[float, float, int]:
         try:
@@ -400,6 +431,12 @@ def _metric_names() -> tuple[str, ...]:
     return STUDY_METRICS
 
 
+def _task_engines() -> tuple[str, ...]:
+    from validation.experiment.task import ENGINES
+
+    return tuple(ENGINES)
+
+
 def _steppers() -> tuple[str, ...]:
     from cipcore.params import STEPPERS
 
@@ -436,6 +473,9 @@ DOMAINS: dict[str, Domain] = {d.name: d for d in (
     Domain("roots", "int", "", 1, 100),
     Domain("gains", "int", "", 2, 1000),
     Domain("target", "float", "1/s"),
+    Domain("half width", "float", "1/s^2", 0.0, low_open=True),
+    Domain("fraction", "float", "", 0.0, 1.0),
+    Domain("z score", "float", "", 0.0),
     Domain("beta range", "float", "1/s^2", 0.0, pair=True),
     Domain("beta grid", "grid", "1/s^2", 0.0),
     Domain("tau grid", "grid", "s", 0.0, 10.0, low_open=True),
@@ -464,6 +504,18 @@ DOMAINS: dict[str, Domain] = {d.name: d for d in (
     Domain("json in", "in-file"),
     Domain("mjcf in", "in-file"),
     Domain("dataset", "in-path", suffixes=(".nc",)),
+    # the experiment (paper section 4)
+    Domain("port", "int", "", 0, 65535),
+    Domain("host", "text"),
+    Domain("countdown", "int", "s", 0, 60),
+    Domain("trials", "int", "", 1, 10_000, bound="each trial writes one recording per subject"),
+    # a trial's recording is held in memory until it ends: about 2 kB per 20 ms frame
+    Domain("trial duration", "float", "s", 0.0, 3600.0, low_open=True,
+           bound="an hour: the recording is held in memory, about 2 kB a frame"),
+    Domain("bot tau", "float", "s", 0.001, 10.0, bound="at least the task's 1 ms step"),
+    Domain("task mode", "name", choices=("single", "coupled", "both")),
+    Domain("task engine", "name", choices_of=_task_engines),
+    Domain("subjects", "labels", count=2, item="subject label"),
 )}  # fmt: skip
 
 

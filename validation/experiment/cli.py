@@ -12,38 +12,28 @@ from pathlib import Path
 
 from cipcore import ParameterError
 from cipcore.models import MODEL_NAMES, get_model
-from cipcore.params import check_count, check_positive
-from validation.cli.args import add_force_arg, add_no_figures_arg, check_work
-from validation.cli.domains import DOMAINS
+from cipcore.params import whole_steps
+from validation.cli.args import add_force_arg, add_no_figures_arg, refuse_work
+from validation.cli.domains import add_option
 from validation.cli.main import add_command, add_group, command
-from validation.experiment.task import DURATION, ENGINES, TaskSettings
+from validation.experiment.task import DURATION, FRAME, TaskSettings
 
-#: the most bot trials per subject and mode (each writes one recording file)
-MAX_TRIALS = 10_000
-#: an output directory's declared domain: not empty, not an existing file
-OUT_DIR = DOMAINS["out dir"].converter()
-
-
-def _port(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise ParameterError(f"--port must be an integer in [0, 65535], got {text!r}") from None
-    if not 0 <= v <= 65535:
-        raise ParameterError(f"--port must be an integer in [0, 65535], got {v}")
-    return v
+#: Bot frames (trials x seats x trial duration / 20 ms, summed over the modes) above which
+#: ``experiment bots`` asks for ``--force``: a frame takes about 80 us here (3 x 3600 s of
+#: trials, 540,000 frames, in 16.5 s), so 1e7 frames is about 15 minutes.
+MAX_BOT_FRAMES = 1e7
 
 
 def _add_engine_arg(p: argparse.ArgumentParser) -> None:
     """--engine: the engine that moves the sticks (:data:`validation.experiment.task.ENGINES`)."""
-    p.add_argument("--engine", choices=tuple(ENGINES), default="reduced",
-                   help="engine that moves the sticks")  # fmt: skip
+    add_option(p, "--engine", domain="task engine", default="reduced",
+               help="engine that moves the sticks")  # fmt: skip
 
 
 def _add_trial_duration_arg(p: argparse.ArgumentParser) -> None:
     """--trial-duration: the length of one trial (s)."""
-    p.add_argument("--trial-duration", type=float, default=DURATION,
-                   help="length of a trial (s, > 0)")  # fmt: skip
+    add_option(p, "--trial-duration", domain="trial duration", default=DURATION,
+               help="length of a trial (s)")  # fmt: skip
 
 
 def register(subparsers) -> None:
@@ -56,25 +46,25 @@ def register(subparsers) -> None:
     s = add_command(
         sub, "serve", cmd_serve, help="web server of the tracking task (prints the URL)"
     )
-    s.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    s.add_argument("--port", default="8050",
-                   help="TCP port, integer in [0, 65535]; 0 picks a free one")  # fmt: skip
+    add_option(s, "--host", domain="host", default="127.0.0.1", help="address to listen on")
+    add_option(s, "--port", domain="port", default=8050, help="TCP port; 0 picks a free one")
     _add_engine_arg(s)
-    s.add_argument("--out", default="experiment-data", metavar="DIR", type=OUT_DIR,
-                   help="directory of the recordings (created if absent)")  # fmt: skip
+    add_option(s, "--out", domain="out dir", default="experiment-data", metavar="DIR",
+               help="directory of the recordings (created if absent)")  # fmt: skip
     _add_trial_duration_arg(s)
-    s.add_argument("--countdown", type=int, default=3,
-                   help="countdown before a trial (s, integer >= 0)")  # fmt: skip
-    s.add_argument(
-        "--allow-host", action="append", default=argparse.SUPPRESS, metavar="NAME",
+    add_option(s, "--countdown", domain="countdown", default=3,
+               help="countdown before a trial (s)")  # fmt: skip
+    add_option(
+        s, "--allow-host", domain="host", action="append", default=argparse.SUPPRESS,
+        metavar="NAME",
         help="a host name under which pages may reach the server (repeatable; IP addresses "
         "and localhost are always allowed)",
     )  # fmt: skip
 
     a = add_command(sub, "analyze", cmd_analyze, help="Tables 1 and 2, Figs. 12-16")
     a.add_argument("dir", help="directory of recordings")
-    a.add_argument("--out", default=argparse.SUPPRESS, metavar="DIR", type=OUT_DIR,
-                   help="report directory (default: DIR/analysis)")  # fmt: skip
+    add_option(a, "--out", domain="out dir", default=argparse.SUPPRESS, metavar="DIR",
+               help="report directory (default: DIR/analysis)")  # fmt: skip
     add_no_figures_arg(a, "write the tables only")
     a.add_argument(
         "--include-incomplete", action="store_true",
@@ -83,21 +73,21 @@ def register(subparsers) -> None:
     )  # fmt: skip
 
     b = add_command(sub, "bots", cmd_bots, help="bot-vs-bot trials at full speed, no browser")
-    b.add_argument("--out", default="experiment-bots", type=OUT_DIR,
-                   help="directory of the recordings")  # fmt: skip
-    b.add_argument("--mode", choices=("single", "coupled", "both"), default="both",
-                   help="task: one stick, two coupled sticks, or both")  # fmt: skip
-    b.add_argument("--subjects", default="A,B", help="two labels, e.g. A,B")
-    b.add_argument("--trials", type=int, default=5,
-                   help=f"trials per subject and mode (count in [1, {MAX_TRIALS}])")  # fmt: skip
+    add_option(b, "--out", domain="out dir", default="experiment-bots",
+               help="directory of the recordings")  # fmt: skip
+    add_option(b, "--mode", domain="task mode", default="both",
+               help="task: one stick, two coupled sticks, or both")  # fmt: skip
+    add_option(b, "--subjects", domain="subjects", default="A,B", metavar="A,B",
+               help="the two subjects' labels")  # fmt: skip
+    add_option(b, "--trials", domain="trials", default=5, help="trials per subject and mode")
     _add_trial_duration_arg(b)
-    b.add_argument("--beta", type=float, default=21.0, help="bot gain (1/s^2)")
-    b.add_argument("--tau", type=float, default=0.1, help="bot delay (s), >= dt = 1 ms, whole ms")
-    b.add_argument("--nu", type=float, default=0.6, help="bot noise (s^1/2); 0: noise-free")
-    b.add_argument("--seed", type=int, default=0,
-                   help="root seed of every bot's draws (integer >= 0)")  # fmt: skip
+    add_option(b, "--beta", domain="beta", default=21.0, help="bot gain (1/s^2)")
+    add_option(b, "--tau", domain="bot tau", default=0.1,
+               help="bot delay (s), a whole number of the task's 1 ms steps")  # fmt: skip
+    add_option(b, "--nu", domain="nu", default=0.6, help="bot noise (s^1/2); 0: noise-free")
+    add_option(b, "--seed", domain="seed", default=0, help="root seed of every bot's draws")
     _add_engine_arg(b)
-    add_force_arg(b)
+    add_force_arg(b, MAX_BOT_FRAMES, "bot frames")
 
 
 @command(
@@ -105,16 +95,12 @@ def register(subparsers) -> None:
     "trial is recorded in --out.",
 )
 def cmd_serve(a: argparse.Namespace) -> int:
-    a.port = _port(a.port)
-    check_positive("--trial-duration", a.trial_duration)
-    check_count("--countdown", a.countdown, minimum=0)
     try:
         from validation.experiment.server import ServerConfig, start
     except ImportError as exc:
         raise ParameterError(
             f"the experiment server needs aiohttp ({exc}); pip install 'cipval[experiment]'"
         ) from None
-    TaskSettings(duration=a.trial_duration)  # validates
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     logging.basicConfig(
@@ -150,15 +136,6 @@ def cmd_serve(a: argparse.Namespace) -> int:
     return 0
 
 
-def _labels(text: str) -> list[str]:
-    from validation.experiment.protocol import LABEL
-
-    labels = [x.strip() for x in text.split(",")]
-    if len(labels) != 2 or not all(LABEL.fullmatch(x) for x in labels) or labels[0] == labels[1]:
-        raise ParameterError(f"--subjects must be two different labels like A,B; got {text!r}")
-    return labels
-
-
 @command(
     "Trials of the task played by delayed random-gain bots (the reduced model's controller) at "
     "full speed, recorded like subjects' trials.",
@@ -169,20 +146,17 @@ def cmd_bots(a: argparse.Namespace) -> int:
     from validation.experiment.bot import BotSpec
     from validation.experiment.headless import run_bot_trial
 
-    labels = _labels(a.subjects)
-    trials = check_count("--trials", a.trials)
-    if trials > MAX_TRIALS:
-        raise ParameterError(
-            f"--trials must be an integer in [1, {MAX_TRIALS}] (each trial writes one "
-            f"recording per subject), got {trials}"
-        )
-    check_count("--seed", a.seed, minimum=0)
+    labels = list(a.subjects)
     modes = MODEL_NAMES if a.mode == "both" else (a.mode,)
-    check_positive("--trial-duration", a.trial_duration)
-    # every bot steps the tip at the task's dt: one realisation per subject and trial
-    dt = TaskSettings().params.dt
-    check_work("--trials x --trial-duration", 2 * trials, a.trial_duration, dt,
-               runs=len(modes), force=a.force)  # fmt: skip
+    dt = TaskSettings().params.dt  # every bot steps the tip at the task's 1 ms
+    whole_steps("--tau", a.tau, dt)
+    # a trial per subject alone (single) or one per pair (coupled), each of n frames
+    n = round(a.trial_duration / FRAME)
+    seats = sum(len(labels) // get_model(m).n_controllers for m in modes)
+    refuse_work("--trials x --trial-duration", float(a.trials) * seats * n,
+                f"{a.trials} trials x {seats} trial(s) per round x {n} frames of {FRAME:g} s",
+                bound=MAX_BOT_FRAMES, unit="bot frames", force=a.force)  # fmt: skip
+    trials = a.trials
     # one independent stream per (mode, trial, subject), fixed by --seed
     seeds = iter(np.random.SeedSequence(a.seed).generate_state(2 * trials * 2 * len(modes)))
     out = Path(a.out)

@@ -36,6 +36,7 @@ import re
 from typing import Any
 
 from cipcore.models import get_model
+from validation.cli.domains import LABEL  # a subject's label, declared once
 from validation.experiment.task import MODES
 
 MAX_MESSAGE_BYTES = 2048
@@ -59,8 +60,6 @@ MAX_DRAWN = 60
 COLOR = re.compile(r"#[0-9a-fA-F]{6}")
 #: accepted mouse pixels (the canvas is 1..1200; a captured pointer may leave it)
 PIXEL_RANGE = (-10_000.0, 10_000.0)
-#: used with ``fullmatch`` only (``$`` would let a trailing newline through)
-LABEL = re.compile(r"[A-Za-z0-9_.-]{1,32}")
 CODE = re.compile(r"[A-Za-z0-9_-]{8,64}")
 TRIAL_RANGE = (1, 100_000)
 BOT_RANGES = {"beta": (0.0, 2000.0), "tau": (0.001, 1.0), "nu": (0.0, 5.0)}

@@ -22,7 +22,7 @@ import numpy as np
 from cipcore.models import get_model
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
-from validation.cli.domains import STUDY_METRICS, check_key
+from validation.cli.domains import DOMAINS, STUDY_METRICS, check_key
 from validation.profiles import Profile
 from validation.regression.versions import package_versions
 from validation.sweeps.mapping import (
@@ -120,12 +120,6 @@ class Study:
             )
         self._check_no_effect(rigid)
         st = self.stcc
-        if not (st["window"] > 0 and st["stride"] > 0 and st["max_lag"] > 0):
-            raise ParameterError(f"stcc: window, max_lag and stride must be > 0 s, got {st}")
-        if not 0 <= st["dominance"] <= 1 or st["significance_z"] < 0:
-            raise ParameterError(
-                f"stcc: dominance must be in [0, 1] and significance_z >= 0, got {st}"
-            )
         stcc_min = st["window"] + st["max_lag"] + 1.0
         if "tau_hat" in self.metrics and self.duration < stcc_min:
             raise ParameterError(
@@ -259,32 +253,30 @@ PHYSICAL_ONLY = tuple(k for k in SETTINGS if k not in ("beta", "alpha", "gamma",
                                                         "dt", "amplitude"))  # fmt: skip
 
 
+#: the declared domain of each key of the ``[gain]`` and ``[stcc]`` tables
+#: (:data:`validation.cli.domains.DOMAINS`)
+TABLE_KEYS = {
+    "gain": {"target_lambda1": "target", "half_width": "half width", "gains": "gains",
+             "realizations": "study realizations", "duration": "duration"},
+    "stcc": {"window": "duration", "max_lag": "duration", "stride": "duration",
+             "dominance": "fraction", "significance_z": "z score"},
+}  # fmt: skip
+
+
 def _settings(table: str, given: Any, defaults: dict[str, Any]) -> dict[str, Any]:
     """A ``[gain]`` / ``[stcc]`` table with its defaults filled in ({} when not given, for
-    ``gain``); unknown keys and non-numbers refused."""
+    ``gain``); unknown keys refused, each value in its declared domain (:data:`TABLE_KEYS`)."""
     if not given:
         return {} if table == "gain" else dict(defaults)
     if not isinstance(given, dict):
         raise ParameterError(f"{table}: expected a table of settings, got {given!r}")
+    out = dict(defaults)
     for k, v in given.items():
         if k not in defaults:
             raise ParameterError(f"{table}.{k}: unknown setting; allowed: {', '.join(defaults)}")
-        if isinstance(v, bool) or not isinstance(v, int | float) or not np.isfinite(v):
-            raise ParameterError(f"{table}.{k}: expected a finite number, got {v!r}")
-    out = {**defaults, **{k: float(v) for k, v in given.items()}}
-    if table == "gain":
-        for k in ("gains", "realizations"):
-            if out[k] != int(out[k]) or out[k] < 2:
-                raise ParameterError(f"gain.{k} must be an integer >= 2, got {given[k]!r}")
-            out[k] = int(out[k])
-        if not (out["half_width"] > 0 and out["duration"] > 0):
-            raise ParameterError(f"gain: half_width and duration must be > 0, got {given}")
+        v = check_key(f"{table}.", k, v, TABLE_KEYS[table][k])
+        out[k] = float(v) if DOMAINS[TABLE_KEYS[table][k]].kind == "float" else v
     return out
-
-
-def _check_int(name: str, value: Any, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ParameterError(f"{name} must be an integer >= {minimum}, got {value!r}")
 
 
 def _check_value(where: str, key: str, value: Any) -> None:
