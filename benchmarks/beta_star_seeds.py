@@ -3,7 +3,7 @@
 For each profile (``--profiles``) and seed (``--seeds``), the run's beta* stage alone
 (:func:`validation.paper.claims.critical_gains`, the profile with its seed replaced)
 gives beta* single, coupled and their shift, each check's verdict and tolerance.
-Printed per profile and check: the mean over seeds of (estimate - bias correction) and
+Printed per profile and check: the mean over seeds of the estimate minus the paper's value and
 its distance from the paper's value in standard errors of that mean, the per-run
 standard deviation beside the mean bootstrap SE, the failures (the model is correct:
 every failure is a false one), the largest |deviation| / tolerance, and the per-run
@@ -48,10 +48,14 @@ def one_seed(profile: str, seed: int, threads: int | None) -> dict[str, dict]:
 def summary(rows: list[dict[str, dict]]) -> dict[str, dict]:
     """Per check: the mean offset, its SE, the spread, failures and the implied rate."""
     out = {}
-    for name in rows[0]:
-        v = [r[name] for r in rows]
-        corrected = np.array([x["value"] - x.get("bias", 0.0) for x in v])
-        paper = v[0]["paper"]
+    names = list(dict.fromkeys(("single", "coupled", "shift", *(k for r in rows for k in r))))
+    for name in names:
+        every = [r[name] for r in rows if name in r]
+        # a run whose fit did not cross the target has no value: a failure, no number
+        v = [x for x in every if "value" in x]
+        uncrossed = len(every) - len(v)
+        corrected = np.array([x["value"] for x in v])
+        paper = every[0]["paper"]
         dev = corrected - paper
         sd = float(dev.std(ddof=1))
         mean = float(dev.mean())
@@ -63,7 +67,8 @@ def summary(rows: list[dict[str, dict]]) -> dict[str, dict]:
             "paper": paper, "offset": mean, "se_of_mean": sd / np.sqrt(len(v)),
             "offset_in_se": mean / (sd / np.sqrt(len(v))), "sd_per_run": sd,
             "mean_bootstrap_se": float(np.mean([x["se"] for x in v])),
-            "fails": sum(x["status"] != "pass" for x in v), "runs": len(v),
+            "fails": sum(x["status"] != "pass" for x in every), "runs": len(every),
+            "uncrossed": uncrossed,
             "worst_fraction": float(np.max(np.abs(dev) / tol)), "implied_rate": rate,
         }  # fmt: skip
     return out
@@ -91,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {name:8s} paper {s['paper']:.3f}: offset {s['offset']:+.4f} +- "
                   f"{s['se_of_mean']:.4f} ({s['offset_in_se']:+.1f} SE), per-run SD "
                   f"{s['sd_per_run']:.4f} (mean bootstrap SE {s['mean_bootstrap_se']:.4f}), "
-                  f"fails {s['fails']}/{s['runs']}, worst {s['worst_fraction']:.2f} of the "
+                  f"fails {s['fails']}/{s['runs']} ({s['uncrossed']} without a crossing), "
+                  f"worst {s['worst_fraction']:.2f} of the "
                   f"tolerance, implied rate {s['implied_rate']:.1e}")  # fmt: skip
     if a.json is not None:
         write_text(a.json, json.dumps(out, indent=1, default=float))
