@@ -51,7 +51,13 @@ from cip.names import (
 )
 from cipcore.atomic import write_text
 from cipcore.models import MODEL_NAMES, get_model
-from cipcore.params import BalanceParams, ParameterError, check_choice, check_positive
+from cipcore.params import (
+    MASS_RATIO_RANGE,
+    BalanceParams,
+    ParameterError,
+    check_choice,
+    check_positive,
+)
 
 INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 #: MuJoCo's enum of each integrator name (``<option integrator=...>``)
@@ -138,7 +144,11 @@ class CIPParams:
         L = g / alpha, tip and cart damping gamma, m = mass_ratio * M,
         timestep dt.  Extra keyword arguments set other physical parameters.
         """
-        check_positive("mass_ratio", mass_ratio)
+        m_lo, m_hi = MASS_RATIO_RANGE
+        if not m_lo <= mass_ratio <= m_hi:  # NaN too
+            raise ParameterError(
+                f"mass_ratio must be in [{m_lo:g}, {m_hi:g}] (bob / cart), got {mass_ratio}"
+            )
         lo, hi = PENDULUM_LENGTH_RANGE
         if not gravity / hi <= params.alpha <= gravity / lo:
             raise ParameterError(

@@ -24,6 +24,11 @@ from typing import Any
 
 STEPPERS = ("semi-implicit", "explicit")
 
+#: The bob-to-cart mass ratio m/M of the rigid body (the cart 1 kg): MuJoCo refuses a
+#: body lighter than its mjMINVAL (1e-15 kg), and the reduced model's reduction neglects
+#: m/M, so a bob heavier than the cart is outside the model.  The command line's domain
+#: (``validation.cli.domains``) and :meth:`cip.model.CIPParams.from_reduced` read it.
+MASS_RATIO_RANGE = (1e-12, 1.0)
 #: The paper's parameters (section 2.2): gamma = 50, alpha = 22, nu = 0.6, tau = 0.1.
 PAPER = {"alpha": 22.0, "gamma": 50.0, "nu": 0.6, "tau": 0.1, "dt": 1e-3}
 

@@ -303,3 +303,17 @@ def test_pd_controller_balances_the_cip():
         Scenario("single", p, 3.0, 1, amplitude=0.02), controller=Controller("pd", kp=10.0, kd=10.0)
     )
     assert np.abs(weak["balancing_error"][0, -1, 0]) > 0.02
+
+
+@pytest.mark.parametrize("ratio", [0.0, 1e-13, 1.5, float("nan"), float("inf")])
+def test_from_reduced_refuses_a_mass_ratio_outside_its_declared_range(ratio):
+    """The bob/cart ratio's range is declared once (cipcore.params.MASS_RATIO_RANGE): the
+    Python API refuses what the command line refuses, in one line naming it."""
+    from cip.model import CIPParams
+    from cipcore.params import MASS_RATIO_RANGE, BalanceParams, ParameterError
+    from validation.cli.domains import DOMAINS
+
+    assert (DOMAINS["mass ratio"].low, DOMAINS["mass ratio"].high) == MASS_RATIO_RANGE
+    with pytest.raises(ParameterError, match=r"mass_ratio must be in \[1e-12, 1\]"):
+        CIPParams.from_reduced(BalanceParams(beta=20.0), mass_ratio=ratio)
+    CIPParams.from_reduced(BalanceParams(beta=20.0), mass_ratio=MASS_RATIO_RANGE[1])

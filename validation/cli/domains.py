@@ -32,6 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cipcore.params import MASS_RATIO_RANGE
+
 __all__ = ["DOMAINS", "Domain", "DomainError", "add_option", "domain_of", "option_table"]
 
 #: the kinds of input a domain declares
@@ -465,8 +467,7 @@ DOMAINS: dict[str, Domain] = {d.name: d for d in (
     Domain("workers", "int", "", 1, max_workers(), bound=_W),
     Domain("amplitude", "float", "m"),
     Domain("rod length", "float", "m", 0.0, 100.0, low_open=True),
-    # m/M, the cart 1 kg: MuJoCo refuses a bob lighter than its mjMINVAL (1e-15 kg)
-    Domain("mass ratio", "float", "", 1e-12, 1.0),
+    Domain("mass ratio", "float", "", *MASS_RATIO_RANGE),  # m/M (cipcore.params)
     Domain("decimate", "int", "", 1, 1_000_000),
     Domain("fps", "float", "1/s", 0.0, 1000.0, low_open=True),
     Domain("pixels", "int", "pixels", 1, 4096),
