@@ -114,9 +114,10 @@ from cip.engines.rigid_body import RigidBodyEngine
 from cipcore.engine import Capabilities
 from cipcore.params import EngineError, ParameterError
 
-__all__ = ["DECLARED_INTEGRATORS", "DECLARED_RODS", "IDLE_PER_COMMAND", "PROTOCOL", "UNITS",
-           "VERSION", "VERSIONS", "EngineProcessError", "ProcessRollout", "close_idle_engines",
-           "declaration", "declared_engine_terms", "idle_engines", "process_engine"]  # fmt: skip
+__all__ = ["DECLARED_INTEGRATORS", "DECLARED_ORDER", "DECLARED_RODS", "IDLE_PER_COMMAND",
+           "PROTOCOL", "UNITS", "VERSION", "VERSIONS", "EngineProcessError", "ProcessRollout",
+           "close_idle_engines", "declaration", "declared_engine_terms", "idle_engines",
+           "process_engine"]  # fmt: skip
 
 PROTOCOL, VERSION = "cipval-chunk", 1
 #: the versions cipval speaks: an engine answers with the highest it speaks
@@ -124,6 +125,8 @@ VERSIONS = (1, 2)
 #: what a version-2 engine may declare (module docstring)
 DECLARED_INTEGRATORS = ("Euler", "implicit", "implicitfast", "RK4", "other")
 DECLARED_RODS = ("soft", "rigid")
+#: the order of accuracy an engine may declare: (low, high], the low end excluded
+DECLARED_ORDER = (0.0, 16.0)
 #: the unit of each entry of the header's ``parameters``
 UNITS = {
     "n_controllers": "1", "timestep": "s", "gravity": "m/s^2", "cart_mass": "kg",
@@ -462,8 +465,9 @@ def declaration(answer: dict[str, Any]) -> dict[str, Any] | None:
         raise ValueError(f"rod must be one of {', '.join(DECLARED_RODS)}, got {rod!r}")
     if order is not None or integrator == "other":
         ok = isinstance(order, int | float) and not isinstance(order, bool)
-        if not (ok and 0 < order <= 16):
-            raise ValueError(f"order must be a number in (0, 16], got {order!r}")
+        lo, hi = DECLARED_ORDER
+        if not (ok and lo < order <= hi):
+            raise ValueError(f"order must be a number in ({lo:g}, {hi:g}], got {order!r}")
         order = float(order)
     return {"integrator": integrator, "order": order, "rod": rod}
 
