@@ -51,6 +51,8 @@ def summary(rows: list[dict[str, dict]]) -> dict[str, dict]:
     names = list(dict.fromkeys(("single", "coupled", "shift", *(k for r in rows for k in r))))
     for name in names:
         every = [r[name] for r in rows if name in r]
+        if not every:
+            continue
         # a run whose fit did not cross the target has no value: a failure, no number
         v = [x for x in every if "value" in x]
         uncrossed = len(every) - len(v)

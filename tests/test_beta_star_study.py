@@ -153,3 +153,38 @@ def test_beta_star_rises_with_alpha_and_falls_with_the_noise():
     d_nu, ci_nu = bsp.sensitivity("single", base, betas, "nu", 0.01, a, idx)
     assert 0.5 < d_alpha < 1.3 and ci_alpha[0] <= d_alpha <= ci_alpha[1]
     assert d_nu < 0 and ci_nu[1] < 0
+
+
+def test_duration_benchmark_finds_the_limit_and_each_profiles_estimate(tmp_path, capsys):
+    """benchmarks/beta_star_duration.py at a small size: beta* at every checkpoint, the
+    fit b_inf + c / (t - t0), K per gain, the smoke profile's runs, and its JSON."""
+    import json
+
+    import beta_star_duration as bsd
+
+    out = tmp_path / "d.json"
+    assert bsd.main(["--models", "single", "--realizations", "32", "--duration", "400",
+                     "--checkpoints", "100,200", "--bootstrap", "50", "--long-transient", "0",
+                     "--json", str(out)]) == 0  # fmt: skip
+    r = json.loads(out.read_text())["results"][0]
+    assert r["times"] == [100.0, 200.0, 400.0] and len(r["beta_star"]) == 3
+    assert 19.8 < r["b_inf"] < 20.8 and r["b_inf_ci"][0] <= r["b_inf_ci"][1]
+    assert len(r["K"]) == len(r["betas"]) and r["dlambda_dbeta"] < 0  # lambda1 falls with beta
+    smoke = r["profiles"]["smoke"]
+    assert smoke["n"] == 8 and smoke["groups"] <= 4 and "bias" in smoke
+    assert "b_inf" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        bsd.main(["--realizations", "12"])  # not a multiple of 8, 16, 32
+
+
+def test_seeds_benchmark_counts_failures_and_runs_without_a_crossing():
+    """benchmarks/beta_star_seeds.py's summary: a run whose fit did not cross the target
+    (no value) is a failure, and the statistics use the runs that have one."""
+    import beta_star_seeds as bss
+
+    ok = {"value": 20.4, "se": 0.1, "paper": 20.306, "tolerance": 0.5, "status": "pass"}
+    rows = [{"single": ok}, {"single": {**ok, "value": 20.2}},
+            {"single": {"paper": 20.306, "status": "fail"}}]  # fmt: skip
+    s = bss.summary(rows)["single"]
+    assert s["runs"] == 3 and s["fails"] == 1 and s["uncrossed"] == 1
+    assert s["offset"] == pytest.approx(20.3 - 20.306)
