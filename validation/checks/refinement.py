@@ -335,7 +335,7 @@ def refine(
 
     ``model`` is the compiled model file (its time step is the control interval h).
     """
-    seed, n_realizations, chunk_time = setting.seed, setting.n_realizations, setting.chunk_time
+    seed, n_realizations = setting.seed, setting.n_realizations
     levels, window = setting.levels, setting.window
     from cip.linearize import rod_jacobians
     from reduced.zoh import zoh_response
@@ -356,25 +356,36 @@ def refine(
     scale = setting.amplitude / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
     exact *= scale
     ctrl *= scale
+    steps = [h / 2**lev for lev in range(levels)]
+    return compare(run_levels(model, backend, ctrl, setting, threads), exact, steps)
+
+
+def run_levels(
+    model: mujoco.MjModel, backend, ctrl: np.ndarray, setting: RefinementSetting, threads: int = 1
+) -> list[np.ndarray]:
+    """The engine's observable (:func:`observable`: cart x and balancing error e per
+    balancer, m) at the control boundaries, from rest, under ``ctrl`` (R, K, nu) held per
+    control interval h (the model file's time step), at each time step h / 2^level of
+    ``setting.levels``: a list of (R, K, .) arrays, finest last."""
+    h = float(model.opt.timestep)
+    _, obs = observable(model)
     data = mujoco.MjData(model)
     mujoco.mj_resetData(model, data)
     mujoco.mj_forward(model, data)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     s0 = np.empty(mujoco.mj_stateSize(model, spec))
     mujoco.mj_getState(model, data, s0, spec)
-    state0 = np.tile(s0, (n_realizations, 1))
-    qpos0 = model.qpos0
-    runs, steps = [], []
-    for lev in range(levels):
+    state0 = np.tile(s0, (ctrl.shape[0], 1))
+    runs = []
+    for lev in range(setting.levels):
         sub = 2**lev
         mk = copy.deepcopy(model)
         mk.opt.timestep = h / sub
-        steps.append(h / sub)
         states = _run_backend(backend, mk, state0, np.repeat(ctrl, sub, axis=1),
-                              max(1, round(chunk_time / (h / sub))), threads)  # fmt: skip
-        q = states[:, sub - 1 :: sub, 1 : 1 + nq] - qpos0
+                              max(1, round(setting.chunk_time / (h / sub))), threads)  # fmt: skip
+        q = states[:, sub - 1 :: sub, 1 : 1 + model.nq] - model.qpos0
         runs.append(q @ obs.T)
-    return compare(runs, exact, steps)
+    return runs
 
 
 def compare(runs: list[np.ndarray], exact: np.ndarray, steps: list[float]) -> Refinement:
