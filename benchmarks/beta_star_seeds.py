@@ -25,18 +25,11 @@ from pathlib import Path
 
 import numpy as np
 from scipy.stats import norm
+from seed_robustness import seeds_arg  # '1-20' or '1,5,7'
 
 from cipcore.atomic import write_text
 from validation.paper.claims import critical_gains
 from validation.profiles import PROFILES
-
-
-def seeds_arg(text: str) -> list[int]:
-    """'1-20' or '1,5,7'."""
-    if "-" in text:
-        a, b = text.split("-")
-        return list(range(int(a), int(b) + 1))
-    return [int(s) for s in text.split(",")]
 
 
 def one_seed(profile: str, seed: int, threads: int | None) -> dict[str, dict]:

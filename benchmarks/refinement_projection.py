@@ -56,9 +56,10 @@ DIRECTIONS = ("tip_damping", "cart_damping", "mass_ratio", "pendulum_length", "g
 STEP = 1e-3
 
 
-def directions(m: mujoco.MjModel, model: str) -> list[tuple[str, mujoco.MjModel]]:
-    """(kind, the model file with that parameter changed by :data:`STEP`) for each of
-    :data:`DIRECTIONS` that applies to ``model``."""
+def directions(m: mujoco.MjModel, model: str, rod: str) -> list[tuple[str, tuple]]:
+    """(kind, the linearisation (A, B) of the model file with that parameter changed by
+    :data:`STEP`, the rod as ``rod``) for each of :data:`DIRECTIONS` that applies to
+    ``model``: the same at every seed, so computed once."""
     out = []
     for kind in DIRECTIONS:
         fault = make_fault(kind, STEP)
@@ -67,12 +68,13 @@ def directions(m: mujoco.MjModel, model: str) -> list[tuple[str, mujoco.MjModel]
         fm = copy.deepcopy(m)
         fault.edit_model(fm)
         mujoco.mj_setConst(fm, mujoco.MjData(fm))
-        out.append((kind, fm))
+        out.append((kind, rod_jacobians(fm, rod)))
     return out
 
 
-def projections(m, backend, rod: str, setting: RefinementSetting, dirs) -> tuple[dict, float]:
-    """c_k per direction and E0 of one refinement run (module docstring)."""
+def projections(m, backend, ab, setting: RefinementSetting, dirs) -> tuple[dict, float]:
+    """c_k per direction and E0 of one refinement run (module docstring); ``ab`` the
+    model file's linearisation, ``dirs`` from :func:`directions`."""
     h = float(m.opt.timestep)
     k_int = round(setting.window / h)
     motors, obs = observable(m)
@@ -82,13 +84,12 @@ def projections(m, backend, rod: str, setting: RefinementSetting, dirs) -> tuple
         ctrl[..., motor] = f[..., i]
     x0 = np.zeros((setting.n_realizations, m.nq + m.nv))
 
-    def exact_of(model: mujoco.MjModel) -> np.ndarray:
-        a, b = rod_jacobians(model, rod)
+    def exact_of(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return zoh_response(a, b, x0, ctrl, h)[..., : m.nq] @ obs.T
 
-    exact = exact_of(m)
+    exact = exact_of(*ab)
     scale = setting.amplitude / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
-    sens = {kind: (exact_of(fm) - exact) * scale / STEP for kind, fm in dirs}
+    sens = {kind: (exact_of(*abk) - exact) * scale / STEP for kind, abk in dirs}
     exact, ctrl = exact * scale, ctrl * scale
     y0 = extrapolate(run_levels(m, backend, ctrl, setting), ROUNDOFF)[0]
     e = (y0 - exact).ravel()
@@ -116,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         rod = "soft" if eng.capabilities.rod == "soft" else "rigid"
         for model in a.models.split(","):
             m, s = model_file(model), FLOAT32_SETTINGS[model]
-            dirs = directions(m, model)
+            dirs, ab = directions(m, model, rod), rod_jacobians(m, rod)
             cases = [("clean", None, None)] + [
                 (f"{k} {float(z):g}", k, make_fault(k, float(z)))
                 for k in a.faults.split(",") for z in a.sizes.split(",")
@@ -128,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 backend = eng.rollout() if fault is None else fault.backend(eng.rollout())
                 t = time.perf_counter()
-                rows = [projections(m, backend, rod, RefinementSetting(
+                rows = [projections(m, backend, ab, RefinementSetting(
                     seed, window=s.window, amplitude=s.amplitude), dirs)
                     for seed in range(1, a.seeds + 1)]  # fmt: skip
                 e0 = np.array([r[1] for r in rows])

@@ -158,6 +158,10 @@ CASES = [
         "experiment bots --trial-duration 3600 --trials 20 --out {d}/b",
         ["--trials x --trial-duration", "estimated work 1.08e+07 bot frames", "--force"],
     ),
+    (
+        "stability --beta 30 --beta-grid 0:80:1000 --tau-grid 0.01:0.3:1000 --plot {d}/x.png",
+        ["--beta-grid x --tau-grid", "estimated work 1e+06 region points", "--force"],
+    ),
 ]
 
 

@@ -150,22 +150,22 @@ def cmd_bots(a: argparse.Namespace) -> int:
     modes = MODEL_NAMES if a.mode == "both" else (a.mode,)
     dt = TaskSettings().params.dt  # every bot steps the tip at the task's 1 ms
     whole_steps("--tau", a.tau, dt)
-    # a trial per subject alone (single) or one per pair (coupled), each of n frames
+    # per round, a trial per subject alone (single) or one per pair (coupled), n frames each
+    groups = {m: [[x] for x in labels] if get_model(m).n_controllers == 1 else [labels]
+              for m in modes}  # fmt: skip
+    per_round = sum(len(g) for g in groups.values())
     n = round(a.trial_duration / FRAME)
-    seats = sum(len(labels) // get_model(m).n_controllers for m in modes)
-    refuse_work("--trials x --trial-duration", float(a.trials) * seats * n,
-                f"{a.trials} trials x {seats} trial(s) per round x {n} frames of {FRAME:g} s",
+    refuse_work("--trials x --trial-duration", float(a.trials) * per_round * n,
+                f"{a.trials} trials x {per_round} trial(s) per round x {n} frames of {FRAME:g} s",
                 bound=MAX_BOT_FRAMES, unit="bot frames", force=a.force)  # fmt: skip
-    trials = a.trials
     # one independent stream per (mode, trial, subject), fixed by --seed
-    seeds = iter(np.random.SeedSequence(a.seed).generate_state(2 * trials * 2 * len(modes)))
+    seeds = iter(np.random.SeedSequence(a.seed).generate_state(2 * a.trials * 2 * len(modes)))
     out = Path(a.out)
     done = []
     for mode in modes:
         settings = TaskSettings(mode=mode, duration=a.trial_duration)
-        for k in range(1, trials + 1):
-            groups = [[x] for x in labels] if get_model(mode).n_controllers == 1 else [labels]
-            for group in groups:
+        for k in range(1, a.trials + 1):
+            for group in groups[mode]:
                 specs = [BotSpec(a.beta, a.tau, a.nu, int(next(seeds))) for _ in group]
                 path = run_bot_trial(settings, specs, group, k, out, engine=a.engine)
                 done.append(path)

@@ -24,6 +24,7 @@ from validation.cli.args import (
     dump,
     engine_options,
     params_from_args,
+    refuse_work,
 )
 from validation.cli.ci_options import progress_enabled
 from validation.cli.domains import add_option
@@ -135,12 +136,10 @@ REGION_POINT_S, MAX_REGION_POINTS = 0.016, 100_000
 def check_region_work(n_betas: int, n_taus: int, force: bool) -> int:
     """Points of the region plot; a usage error above :data:`MAX_REGION_POINTS` unless forced."""
     points = n_betas * n_taus
-    if points > MAX_REGION_POINTS and not force:
-        raise ParameterError(
-            f"--beta-grid x --tau-grid: estimated work {points} points ({n_betas} x {n_taus}, "
-            f"about {points * REGION_POINT_S / 3600:.2g} h at {REGION_POINT_S * 1e3:g} ms a "
-            f"point) exceeds {MAX_REGION_POINTS}; lower N or pass --force"
-        )
+    how = (f"{n_betas} x {n_taus}, about {points * REGION_POINT_S / 3600:.2g} h at "
+           f"{REGION_POINT_S * 1e3:g} ms a point")  # fmt: skip
+    refuse_work("--beta-grid x --tau-grid", points, how, bound=MAX_REGION_POINTS,
+                unit="region points", force=force)  # fmt: skip
     return points
 
 
@@ -238,5 +237,5 @@ def register(sub: argparse._SubParsersAction) -> None:
             metavar="LOW:HIGH:N",
             help=f"{what} of the region plot ({unit}; N >= 2 points)",
         )
-    add_force_arg(p)
+    add_force_arg(p, MAX_REGION_POINTS, "region points")
     add_json_arg(p)
