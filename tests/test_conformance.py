@@ -189,16 +189,17 @@ def test_a_run_whose_engine_leaves_the_regime_while_the_reference_stays_is_liste
 
 def test_beta_star_bracket_is_widened_once_when_the_target_is_not_crossed():
     """A beta* above the run's range (alpha 23 moves it by about +0.9) is found over the
-    range widened by its width on each side, and the widened range is returned."""
+    range widened by its width on each side, which the result's gains show."""
     from cipcore.params import BalanceParams
     from cipcore.scenario import Scenario
     from validation.paper.claims import BETA_RANGE, bracketed_gain
 
     lo, hi = BETA_RANGE["single"]
-    inside, none = bracketed_gain(Scenario("single", BalanceParams(beta=20.0), 200.0, 4, 1), 4, 1)
-    assert none is None and lo <= inside.beta_star <= hi
-    res, wide = bracketed_gain(
+    inside = bracketed_gain(Scenario("single", BalanceParams(beta=20.0), 200.0, 4, 1), 4, 1)
+    assert (inside.betas[0], inside.betas[-1]) == (lo, hi) and lo <= inside.beta_star <= hi
+    res = bracketed_gain(
         Scenario("single", BalanceParams(beta=20.0, alpha=23.0), 200.0, 4, 1), 4, 1
     )
-    assert wide == (lo - (hi - lo), hi + (hi - lo))
+    wide = (res.betas[0], res.betas[-1])
+    assert wide == pytest.approx((lo - (hi - lo), hi + (hi - lo)))
     assert hi < res.beta_star < wide[1]

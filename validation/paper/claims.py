@@ -107,12 +107,10 @@ BETA_STAR_OFFSET = (
 )
 
 
-def bracketed_gain(
-    scenario: Scenario, n_gains: int, threads: int | None
-) -> tuple[CriticalGain, tuple[float, float] | None]:
+def bracketed_gain(scenario: Scenario, n_gains: int, threads: int | None) -> CriticalGain:
     """beta* of ``scenario``'s model over its :data:`BETA_RANGE`; where lambda1 does not
     cross the target there, over the range widened by its width on each side (the
-    bracket expanded once, as a root finder would), with that range; a
+    bracket expanded once, as a root finder would; the result's ``betas`` show which); a
     :class:`ParameterError` when it does not cross there either.
 
     The range holds the correct model's beta* at every profile but the smallest: the smoke
@@ -122,11 +120,10 @@ def bracketed_gain(
     lo, hi = BETA_RANGE[scenario.model]
     run = Execution(threads=threads)
     try:
-        return critical_gain(scenario, (lo, hi), target=5e-4, n_gains=n_gains, execution=run), None
+        return critical_gain(scenario, (lo, hi), target=5e-4, n_gains=n_gains, execution=run)
     except ParameterError:
         wide = (max(lo - (hi - lo), 0.0), hi + (hi - lo))
-    res = critical_gain(scenario, wide, target=5e-4, n_gains=n_gains, execution=run)
-    return res, wide
+    return critical_gain(scenario, wide, target=5e-4, n_gains=n_gains, execution=run)
 
 
 def critical_gains(profile: Profile, threads: int | None):
@@ -134,15 +131,13 @@ def critical_gains(profile: Profile, threads: int | None):
     res = {}
     settings = (f"{profile.beta_star_realizations} realisations x {profile.beta_star_duration:g} s"
                 f" at {profile.beta_star_gains} gains, dt 1 ms")  # fmt: skip
-    failed, widened = [], {}
+    failed = []
     for model in MODEL_NAMES:
         try:
             scenario = Scenario(model, BalanceParams(beta=20.0), profile.beta_star_duration,
                                 profile.beta_star_realizations,
                                 profile.seed_for("beta_star", model))  # fmt: skip
-            res[model], wide = bracketed_gain(scenario, profile.beta_star_gains, threads)
-            if wide is not None:
-                widened[model] = wide
+            res[model] = bracketed_gain(scenario, profile.beta_star_gains, threads)
         except ParameterError as exc:  # the target was not crossed: a failed check, not a crash
             failed.append(Check(name=f"paper.beta_star.{model}", status=FAIL,
                                 values={"paper": PAPER_BETA[model]},
@@ -165,10 +160,11 @@ def critical_gains(profile: Profile, threads: int | None):
         ok = abs(r.beta_star - paper) <= tol
         rows.append(_row(f"beta* {model} (lambda1 = 5e-4)", paper, r.beta_star, r.std, settings,
                          "reproduced" if ok else "not reproduced"))  # fmt: skip
+        span = [round(float(r.betas[0]), 6), round(float(r.betas[-1]), 6)]
         wide = (
             f"; lambda1 did not cross the target in {list(BETA_RANGE[model])}: the gains "
-            f"span {[round(b, 6) for b in widened[model]]}"
-            if model in widened
+            f"span {span}"
+            if span != list(BETA_RANGE[model])
             else ""
         )
         checks.append(Check(

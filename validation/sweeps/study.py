@@ -274,8 +274,9 @@ def _settings(table: str, given: Any, defaults: dict[str, Any]) -> dict[str, Any
     for k, v in given.items():
         if k not in defaults:
             raise ParameterError(f"{table}.{k}: unknown setting; allowed: {', '.join(defaults)}")
-        v = check_key(f"{table}.", k, v, TABLE_KEYS[table][k])
-        out[k] = float(v) if DOMAINS[TABLE_KEYS[table][k]].kind == "float" else v
+        domain = DOMAINS[TABLE_KEYS[table][k]]
+        v = check_key(f"{table}.", k, v, domain)
+        out[k] = float(v) if domain.kind == "float" else v
     return out
 
 
