@@ -126,8 +126,9 @@ def _stages_done(out) -> list[str]:
     return json.loads(path.read_text())["stages_done"] if path.is_file() else []
 
 
-def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]]:
-    """Send ``sig`` once ``n_stages`` stages are on disk; (exit status, stderr, stages)."""
+def _interrupt_after(proc, out, n_stages: int, sig, then=None) -> tuple[int, str, list[str]]:
+    """Send ``sig`` once ``n_stages`` stages are on disk, and ``then`` (a second signal)
+    20 ms later, while the run stops or exits; (exit status, stderr, stages)."""
     import time
 
     deadline = time.time() + 300
@@ -135,6 +136,10 @@ def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]
         time.sleep(0.05)
     assert proc.poll() is None, "the run finished before it could be interrupted"
     proc.send_signal(sig)
+    if then is not None:
+        time.sleep(0.02)
+        if proc.poll() is None:
+            proc.send_signal(then)
     _, err = proc.communicate(timeout=300)
     return proc.returncode, err, _stages_done(out)
 
@@ -142,8 +147,10 @@ def _interrupt_after(proc, out, n_stages: int, sig) -> tuple[int, str, list[str]
 def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tmp_path):
     """The fast version of the test below: SIGTERM after the first stage, then a resume
     stopped one stage later; it reuses the kept stage, and every check so far has the
-    numbers of the uninterrupted run.  (The slow version keeps two stages, the figures'
-    process, SIGINT, and resumes to the end.)"""
+    numbers of the uninterrupted run.  The resume gets a SIGINT 20 ms after its SIGTERM:
+    the first signal decides the exit status, and the second breaks off nothing.  (The
+    slow version keeps two stages, the figures' process, SIGINT, and resumes to the
+    end.)"""
     import signal
 
     from validation.run import STAGES
@@ -156,9 +163,14 @@ def test_sigterm_keeps_every_finished_stage_and_resume_reuses_them(smoke_run, tm
     assert last.startswith("cip-validate: interrupted by SIGTERM: kept ") and "--resume" in last
     assert len(kept) >= 1 and kept == list(STAGES[: len(kept)])
     code, err, kept2 = _interrupt_after(
-        _start_run(out, "--no-figures", "--resume"), out, len(kept) + 1, signal.SIGTERM
+        _start_run(out, "--no-figures", "--resume"),
+        out,
+        len(kept) + 1,
+        signal.SIGTERM,
+        then=signal.SIGINT,
     )
     assert code == 143, err
+    assert err.strip().splitlines()[-1].startswith("cip-validate: interrupted by SIGTERM: ")
     assert len(kept2) > len(kept) and kept2[: len(kept)] == kept
     partial = json.loads((out / "results.json").read_text())
     assert partial["partial"] is True and partial["stages_reused"] == kept

@@ -376,10 +376,24 @@ def interrupt_signals() -> Iterator[dict]:
 
     Installed explicitly, so that it works even where a parent process started
     us with SIGINT ignored.
+
+    The first signal decides: it raises KeyboardInterrupt and names the exit status
+    (:func:`interrupted_status`); a later one is counted in ``got["later"]`` and
+    raises nothing, so that it cannot break off the saving of the finished work.
+    After a signal the process is on its way out, so on leaving the block both
+    signals stay ignored rather than getting their old handlers back: Python resets
+    a handler of its own to the default action when the interpreter finalises, and
+    a SIGINT arriving then (a second Ctrl-C, a signal to the process group) would
+    kill the exiting process by it, with status -SIGINT instead of the first
+    signal's (seen once in CI: a run stopped by SIGTERM that printed its message
+    and then ended killed by SIGINT).  Without a signal the old handlers return.
     """
-    got: dict[str, int | None] = {"signal": None}
+    got: dict[str, int | None] = {"signal": None, "later": 0}
 
     def handler(signum: int, frame: object) -> None:
+        if got["signal"] is not None:
+            got["later"] = int(got["later"] or 0) + 1
+            return
         got["signal"] = signum
         raise KeyboardInterrupt
 
@@ -388,7 +402,7 @@ def interrupt_signals() -> Iterator[dict]:
         yield got
     finally:
         for s, h in old.items():
-            signal.signal(s, h)
+            signal.signal(s, signal.SIG_IGN if got["signal"] is not None else h)
 
 
 def interrupted_status(got: dict) -> tuple[str, int]:
