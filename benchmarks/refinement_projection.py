@@ -28,73 +28,37 @@ more than which one.
 from __future__ import annotations
 
 import argparse
-import copy
 import os
 import sys
 import time
 
-import mujoco
 import numpy as np
 
-from cip.linearize import rod_jacobians
-from reduced.zoh import zoh_response
 from validation.checks.agreement import model_file
 from validation.checks.refinement import (
     FLOAT32_SETTINGS,
-    ROUNDOFF,
+    PROJECTED,
     RefinementSetting,
-    extrapolate,
-    observable,
-    open_loop_forces,
+    compare,
+    excitation,
+    parameter_projections,
     run_levels,
 )
 from validation.faults.catalogue import make_fault
 
-#: the parameters whose directions are projected on (fault catalogue kinds)
-DIRECTIONS = ("tip_damping", "cart_damping", "mass_ratio", "pendulum_length", "gravity")
-#: the relative change that defines a direction
-STEP = 1e-3
+
+def one_run(m, backend, rod: str, setting: RefinementSetting) -> tuple[dict, dict, float]:
+    """(c from the nonlinear reference, c from the linear solution, E0) of one refinement
+    run of ``backend`` (:func:`validation.checks.refinement.parameter_projections`)."""
+    ctrl, exact, _ = excitation(m, rod, setting)
+    runs = run_levels(m, backend, ctrl, setting)
+    c, c_lin = parameter_projections(m, rod, setting, runs)
+    return c, c_lin, compare(runs, exact, [1.0] * len(runs)).e0
 
 
-def directions(m: mujoco.MjModel, model: str, rod: str) -> list[tuple[str, tuple]]:
-    """(kind, the linearisation (A, B) of the model file with that parameter changed by
-    :data:`STEP`, the rod as ``rod``) for each of :data:`DIRECTIONS` that applies to
-    ``model``: the same at every seed, so computed once."""
-    out = []
-    for kind in DIRECTIONS:
-        fault = make_fault(kind, STEP)
-        if model not in fault.models or fault.edit_model is None:
-            continue
-        fm = copy.deepcopy(m)
-        fault.edit_model(fm)
-        mujoco.mj_setConst(fm, mujoco.MjData(fm))
-        out.append((kind, rod_jacobians(fm, rod)))
-    return out
-
-
-def projections(m, backend, ab, setting: RefinementSetting, dirs) -> tuple[dict, float]:
-    """c_k per direction and E0 of one refinement run (module docstring); ``ab`` the
-    model file's linearisation, ``dirs`` from :func:`directions`."""
-    h = float(m.opt.timestep)
-    k_int = round(setting.window / h)
-    motors, obs = observable(m)
-    ctrl = np.zeros((setting.n_realizations, k_int, m.nu))
-    f = open_loop_forces(setting.n_realizations, k_int, len(motors), h, setting.seed)
-    for i, motor in enumerate(motors):
-        ctrl[..., motor] = f[..., i]
-    x0 = np.zeros((setting.n_realizations, m.nq + m.nv))
-
-    def exact_of(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return zoh_response(a, b, x0, ctrl, h)[..., : m.nq] @ obs.T
-
-    exact = exact_of(*ab)
-    scale = setting.amplitude / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
-    sens = {kind: (exact_of(*abk) - exact) * scale / STEP for kind, abk in dirs}
-    exact, ctrl = exact * scale, ctrl * scale
-    y0 = extrapolate(run_levels(m, backend, ctrl, setting), ROUNDOFF)[0]
-    e = (y0 - exact).ravel()
-    c = {k: float(e @ s.ravel() / (s.ravel() @ s.ravel())) for k, s in sens.items()}
-    return c, float(np.linalg.norm(e) / np.linalg.norm(exact))
+def _summary(c: np.ndarray) -> str:
+    return (f"mean {c.mean():+.2e}, sd {c.std(ddof=1) if c.size > 1 else 0:.1e}, "
+            f"range [{c.min():+.2e}, {c.max():+.2e}]")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,8 +68,9 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--engines", default="physx", help="comma list (mujoco-float32: the stand-in)")
     p.add_argument("--models", default="single,coupled", help="comma list")
-    p.add_argument("--seeds", type=int, default=20, help="seeds 1..N")
-    p.add_argument("--faults", default="tip_damping,cart_damping", help="comma list of kinds")
+    p.add_argument("--seeds", type=int, default=20, help="number of seeds")
+    p.add_argument("--first-seed", type=int, default=1, help="the first seed")
+    p.add_argument("--faults", default=",".join(PROJECTED), help="comma list of kinds ('' none)")
     p.add_argument("--sizes", default="1e-4,3e-5", help="comma list of relative sizes")
     a = p.parse_args(argv)
     load = os.getloadavg()
@@ -117,32 +82,32 @@ def main(argv: list[str] | None = None) -> int:
         rod = "soft" if eng.capabilities.rod == "soft" else "rigid"
         for model in a.models.split(","):
             m, s = model_file(model), FLOAT32_SETTINGS[model]
-            dirs, ab = directions(m, model, rod), rod_jacobians(m, rod)
             cases = [("clean", None, None)] + [
                 (f"{k} {float(z):g}", k, make_fault(k, float(z)))
-                for k in a.faults.split(",") for z in a.sizes.split(",")
+                for k in a.faults.split(",") if k for z in a.sizes.split(",")
             ]  # fmt: skip
-            print(f"{name} {model}: |e| {s.amplitude:g} m, {s.window:g} s", flush=True)
-            clean_max = {}
+            print(f"{name} {model}: |e| {s.amplitude:g} m, {s.window:g} s, rod {rod}", flush=True)
+            clean_max: dict[str, float] = {}
             for label, kind, fault in cases:
                 if fault is not None and model not in fault.models:
                     continue
                 backend = eng.rollout() if fault is None else fault.backend(eng.rollout())
                 t = time.perf_counter()
-                rows = [projections(m, backend, ab, RefinementSetting(
-                    seed, window=s.window, amplitude=s.amplitude), dirs)
-                    for seed in range(1, a.seeds + 1)]  # fmt: skip
-                e0 = np.array([r[1] for r in rows])
+                rows = [one_run(m, backend, rod, RefinementSetting(
+                    seed, window=s.window, amplitude=s.amplitude))
+                    for seed in range(a.first_seed, a.first_seed + a.seeds)]  # fmt: skip
+                e0 = np.array([r[2] for r in rows])
                 print(f"  {label}: E0 {e0.min():.2g}-{e0.max():.2g} "
                       f"({time.perf_counter() - t:.0f} s)", flush=True)  # fmt: skip
-                for k, _ in dirs:
+                for k in PROJECTED:
                     c = np.array([r[0][k] for r in rows])
+                    c_lin = np.array([r[1][k] for r in rows])
                     if fault is None:
                         clean_max[k] = float(np.abs(c).max())
                     own = (f"; smallest / clean max |c| {c.min() / clean_max[k]:.1f}"
-                           if kind == k else "")  # fmt: skip
-                    print(f"    c[{k}] mean {c.mean():+.2e}, sd {c.std(ddof=1):.1e}, range "
-                          f"[{c.min():+.2e}, {c.max():+.2e}]{own}", flush=True)  # fmt: skip
+                           if kind == k and k in clean_max else "")  # fmt: skip
+                    print(f"    c[{k}] {_summary(c)}{own}\n"
+                          f"      linear only: {_summary(c_lin)}", flush=True)  # fmt: skip
     return 0
 
 

@@ -83,16 +83,36 @@ float32 setting trades these three (measured with ``benchmarks/refinement_power.
   3.2e-5, at most 3.8e-5, order 1.000-1.002; the stand-in 7.0e-5), 0 false failures in
   20 seeds each.
 
-Flagged at every one of 20 seeds at the float32 setting (sizes 1e-3, 3e-4, 1e-4 tried):
-single model, PhysX and the stand-in, a relative error of 1e-4 in the tip mass, the
-pendulum length, gravity or the tip damping (the tip damping's least upper end 1.3e-4,
-at the floor's edge) and 3e-4 in the cart damping (whose E0 is 0.9 of its size, float32
-or not: 1e-4 is flagged at 14 and 15 of 20 seeds); coupled model, PhysX: 1e-4 in the
-tip mass, the length or gravity, 3e-4 in the tip and the cart damping (1e-4 flagged
+By E0 alone, flagged at every one of 20 seeds at the float32 setting (sizes 1e-3, 3e-4,
+1e-4 tried): single model, PhysX and the stand-in, a relative error of 1e-4 in the tip
+mass, the pendulum length, gravity or the tip damping (the tip damping's least upper end
+1.3e-4, at the floor's edge) and 3e-4 in the cart damping (whose E0 is 0.9 of its size,
+float32 or not: 1e-4 is flagged at 14 and 15 of 20 seeds); coupled model, PhysX: 1e-4 in
+the tip mass, the length or gravity, 3e-4 in the tip and the cart damping (1e-4 flagged
 at 14 and 9 of 20 seeds); the stand-in: 1e-4 in the length, 3e-4 in the tip mass,
 gravity, the tip and the cart damping (1e-4 flagged at 15, 15, 2 and 0 of 20 seeds).
-A 1e-3 error of any of them is flagged at every seed on both models (least upper end
-7.6e-4).
+
+So a float32 engine is also held to the projection of its limit's deviation on each
+parameter's direction (:func:`parameter_projections`).  A relative error d_k of
+parameter k (tip mass, pendulum length, gravity, tip or cart damping; :mod:`cip.edits`)
+moves the limit by d_k s_k, along the exact solution's sensitivity s_k to it
+(:func:`sensitivities`), while rounding spreads over every direction, so
+
+    c_k = <y_0 - x - n, s_k> / <s_k, s_k>,
+
+the relative error of parameter k that alone best explains the deviation, sees a wrong
+parameter that E0 cannot.  n is the linearisation's own error at the setting's amplitude
+(:func:`reference_limit`: the file's nonlinear response, MuJoCo's RK4 in float64
+extrapolated, less its linear response), the same for every correct engine: without it
+the coupled model's c along the tip damping, mass and gravity sits at -1.5e-5 on average
+(float64 MuJoCo at 3e-3 m: -1.7e-5), with it float64 MuJoCo's c falls below 1e-8.  The
+check passes only when every |c_k| <= :attr:`PrecisionSetting.projection_bound`, 5e-5,
+half a 1e-4 error.  Measured (``benchmarks/refinement_projection.py``, seeds 1-20, 4
+force sequences each): the correct float32 engines' largest |c_k| is 2.0e-5 (PhysX
+single), 1.5e-5 (PhysX coupled) and 1.9e-5 (Newton single), a spread of 7.3e-6 at most
+(so the bound is about 6 standard deviations out); a 1e-4 error of any of the five
+parameters gives c_k of 8.5e-5 or more along its own direction at every seed, PhysX and
+the stand-in on both models.
 
 A one-step delay of the engine's control is itself a consistent first-order
 discretisation of the held force (it converges to the same limit), so this check does
@@ -121,17 +141,26 @@ __all__ = [
     "LEVELS",
     "N_MODES",
     "ORDER_SLACK",
+    "PROJECTED",
+    "PROJECTION_BOUND",
     "UNDECLARED_ORDER",
     "WINDOW",
     "PrecisionSetting",
     "Refinement",
     "compare",
+    "excitation",
     "extrapolate",
     "float32_stand_in",
     "float32_state",
+    "linear_response",
     "open_loop_forces",
+    "parameter_projections",
     "precision_setting",
+    "projections",
+    "reference_limit",
     "refine",
+    "run_levels",
+    "sensitivities",
 ]
 
 #: refinement levels: the engine steps at h, h/2, ..., h / 2**(LEVELS - 1)
@@ -321,6 +350,45 @@ class RefinementSetting:
     amplitude: float = AMPLITUDE
 
 
+def excitation(
+    model: mujoco.MjModel, rod: str, setting: RefinementSetting
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The test's forces and the exact solution they give (module docstring).
+
+    Returns (ctrl, exact, x0): the controls (R, K, nu) held per control interval h (the
+    model file's time step: forces on the motors, scaled so that the largest |e| of the
+    response is ``setting.amplitude``), the exact zero-order-hold response's observable
+    (R, K, 2 x balancers: cart x and e, m) of the file's linearisation with the rod as
+    ``rod`` declares it, and the initial state (R, nq + nv: upright, at rest).
+    """
+    from cip.linearize import rod_jacobians
+
+    h = float(model.opt.timestep)
+    k_int = round(setting.window / h)
+    motors, _ = observable(model)
+    # forces on the motors only (the damping actuators take no control)
+    f = open_loop_forces(setting.n_realizations, k_int, len(motors), h, setting.seed)
+    ctrl = np.zeros((setting.n_realizations, k_int, model.nu))
+    for i, motor in enumerate(motors):
+        ctrl[..., motor] = f[..., i]
+    x0 = np.zeros((setting.n_realizations, model.nq + model.nv))
+    exact = linear_response(model, rod_jacobians(model, rod), x0, ctrl)
+    scale = setting.amplitude / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
+    return ctrl * scale, exact * scale, x0
+
+
+def linear_response(
+    model: mujoco.MjModel, ab: tuple[np.ndarray, np.ndarray], x0: np.ndarray, ctrl: np.ndarray
+) -> np.ndarray:
+    """The observable (:func:`observable`, m) of the exact zero-order-hold response of the
+    linear system ``ab`` = (A, B) from ``x0`` under ``ctrl`` held per control interval h
+    (:func:`reduced.zoh.zoh_response`: x_{k+1} = exp(A h) x_k + int_0^h exp(A s) ds B u_k)."""
+    from reduced.zoh import zoh_response
+
+    _, obs = observable(model)
+    return zoh_response(*ab, x0, ctrl, float(model.opt.timestep))[..., : model.nq] @ obs.T
+
+
 def refine(
     model: mujoco.MjModel,
     backend,
@@ -335,28 +403,9 @@ def refine(
 
     ``model`` is the compiled model file (its time step is the control interval h).
     """
-    seed, n_realizations = setting.seed, setting.n_realizations
-    levels, window = setting.levels, setting.window
-    from cip.linearize import rod_jacobians
-    from reduced.zoh import zoh_response
-
+    ctrl, exact, _ = excitation(model, rod, setting)
     h = float(model.opt.timestep)
-    k_int = round(window / h)
-    motors, obs = observable(model)
-    nc = len(motors)
-    nq, nv = model.nq, model.nv
-    a, b = rod_jacobians(model, rod)
-    # forces on the motors only (the damping actuators take no control)
-    f = open_loop_forces(n_realizations, k_int, nc, h, seed)
-    ctrl = np.zeros((n_realizations, k_int, model.nu))
-    for i in range(nc):
-        ctrl[..., motors[i]] = f[..., i]
-    x0 = np.zeros((n_realizations, nq + nv))
-    exact = zoh_response(a, b, x0, ctrl, h)[..., :nq] @ obs.T
-    scale = setting.amplitude / np.abs(exact[..., 1::2]).max(axis=(1, 2), keepdims=True)
-    exact *= scale
-    ctrl *= scale
-    steps = [h / 2**lev for lev in range(levels)]
+    steps = [h / 2**lev for lev in range(setting.levels)]
     return compare(run_levels(model, backend, ctrl, setting, threads), exact, steps)
 
 
@@ -407,6 +456,83 @@ def compare(runs: list[np.ndarray], exact: np.ndarray, steps: list[float]) -> Re
         e0_interval=(max(0.0, e0 - width), e0 + width),
         per_realization=tuple(float(x) for x in per),
     )  # fmt: skip
+
+
+# ------------------------------------------------------------ the projection (float32)
+#: the parameters whose directions the projection tests (:data:`cip.edits.PARAMETER_EDITS`)
+PROJECTED = ("mass_ratio", "pendulum_length", "gravity", "tip_damping", "cart_damping")
+#: the relative change of a parameter that defines its direction
+SENSITIVITY_STEP = 1e-3
+
+
+def sensitivities(
+    model: mujoco.MjModel, rod: str, x0: np.ndarray, ctrl: np.ndarray, exact: np.ndarray
+) -> dict[str, np.ndarray]:
+    """s_k = (x(p_k (1 + d)) - x(p_k)) / d for each parameter k of :data:`PROJECTED`.
+
+    x is the exact response's observable (:func:`linear_response`, the model file's
+    observable map) to ``ctrl`` from ``x0`` of the model file ``model`` with parameter k
+    scaled by 1 + d (d = :data:`SENSITIVITY_STEP`, :mod:`cip.edits`), the rod as ``rod``
+    declares it; ``exact`` the unscaled model's.  Linear in d to O(d): a relative error
+    d_k of parameter k moves the limit by d_k s_k.
+    """
+    from cip.edits import PARAMETER_EDITS
+    from cip.linearize import rod_jacobians
+
+    out = {}
+    for kind in PROJECTED:
+        fm = copy.deepcopy(model)
+        PARAMETER_EDITS[kind](fm, 1.0 + SENSITIVITY_STEP)
+        mujoco.mj_setConst(fm, mujoco.MjData(fm))
+        out[kind] = (linear_response(model, rod_jacobians(fm, rod), x0, ctrl) - exact) / (
+            SENSITIVITY_STEP
+        )
+    return out
+
+
+def projections(deviation: np.ndarray, sens: dict[str, np.ndarray]) -> dict[str, float]:
+    """c_k = <deviation, s_k> / <s_k, s_k>: the relative error of parameter k that alone
+    best explains ``deviation`` (least squares along s_k, :func:`sensitivities`)."""
+    e = deviation.ravel()
+    return {k: float(e @ v.ravel() / (v.ravel() @ v.ravel())) for k, v in sens.items()}
+
+
+def reference_limit(
+    model: mujoco.MjModel, ctrl: np.ndarray, setting: RefinementSetting, threads: int = 1
+) -> np.ndarray:
+    """The model file's nonlinear response to ``ctrl`` (:func:`run_levels`' observable):
+    MuJoCo's RK4 in float64 at the setting's levels, extrapolated (its finest levels reach
+    1e-10 of the trajectory, the rounding of the central differences).  Its distance to
+    the file's linear response (soft rod) is the linearisation's own error at the
+    setting's amplitude, the same for every correct engine; MuJoCo's integration of the
+    file is itself held to its exact twins at 1e-9 by the twin checks."""
+    from cip.runner import MujocoRollout
+
+    mr = copy.deepcopy(model)
+    mr.opt.integrator = int(mujoco.mjtIntegrator.mjINT_RK4)
+    return extrapolate(run_levels(mr, MujocoRollout, ctrl, setting, threads), ROUNDOFF)[0]
+
+
+def parameter_projections(
+    model: mujoco.MjModel,
+    rod: str,
+    setting: RefinementSetting,
+    runs: list[np.ndarray],
+    threads: int = 1,
+) -> tuple[dict[str, float], dict[str, float]]:
+    """(c, c_linear): each parameter's projection (:func:`projections`) of the engine's
+    dt -> 0 limit's deviation, from the nonlinear reference (:func:`reference_limit`: the
+    exact solution with the linearisation's own error added) and from the exact
+    linear solution alone.  ``runs``: the engine's levels (:func:`run_levels`) under the
+    forces of :func:`excitation` at ``setting``."""
+    from cip.linearize import rod_jacobians
+
+    ctrl, exact, x0 = excitation(model, rod, setting)
+    y0 = extrapolate(runs, ROUNDOFF)[0]
+    sens = sensitivities(model, rod, x0, ctrl, exact)
+    soft = linear_response(model, rod_jacobians(model, "soft"), x0, ctrl)
+    nonlinear = reference_limit(model, ctrl, setting, threads) - soft
+    return projections(y0 - exact - nonlinear, sens), projections(y0 - exact, sens)
 
 
 def float32_state(base: type) -> type:
@@ -527,12 +653,15 @@ class PrecisionSetting:
     window : simulated time, s.
     floor : the largest upper end of E0's interval that passes (relative L2).
     why : one sentence: the measured floor it leaves margin over (module docstring).
+    projection_bound : the largest |c_k| that passes, for every parameter k of
+        :data:`PROJECTED` (:func:`parameter_projections`); None: not tested.
     """
 
     amplitude: float
     window: float
     floor: float
     why: str
+    projection_bound: float | None = None
 
 
 #: the float64 setting, every model (module docstring): the response at 1e-5 m, the
@@ -540,6 +669,11 @@ class PrecisionSetting:
 FLOAT64_SETTING = PrecisionSetting(
     AMPLITUDE, WINDOW, FLOOR, "float64: the correct engines' E0 with margin"
 )
+
+#: the largest |c_k| of a float32 engine that passes (module docstring, "Float32
+#: engines"): half a 1e-4 error; the correct float32 engines' largest |c_k| over seeds
+#: 1-20 is 2.0e-5, a 1e-4 error's least c_k along its own direction 8.5e-5
+PROJECTION_BOUND = 5e-5
 
 #: the float32 setting per model (module docstring, "Float32 engines"): the amplitude
 #: where float32 rounding and the linearisation's own error are least, the floor above
@@ -550,12 +684,14 @@ FLOAT32_SETTINGS: dict[str, PrecisionSetting] = {
         "at 1e-3 m float32 rounding is relative and the linearisation's error a sixth of "
         "it; 4 s lets a model error grow beyond the rounding; correct float32 engines' upper "
         "end at most 8.2e-5 over 20 seeds",
+        PROJECTION_BOUND,
     ),
     "coupled": PrecisionSetting(
         3e-3, 4.0, 1.6e-4,
         "at 3e-3 m the rod's float32 noise (as 1 / amplitude) and the linearisation's "
         "error (as amplitude^2) are least together; 4 s lets a model error grow beyond "
         "them; correct float32 engines' upper end at most 1.1e-4 over 20 seeds",
+        PROJECTION_BOUND,
     ),
 }  # fmt: skip
 
@@ -590,8 +726,11 @@ def refinement_check(
     ps = precision_setting(model, caps.precision)
     float32 = ps is not FLOAT64_SETTING
     setting = RefinementSetting(seed, window=ps.window, amplitude=ps.amplitude)
-    r = refine(m, backend or engine.rollout(), rod=rod, setting=setting,
-               threads=max(1, min(threads or 1, REALIZATIONS)))  # fmt: skip
+    threads = max(1, min(threads or 1, REALIZATIONS))
+    ctrl, exact, _ = excitation(m, rod, setting)
+    runs = run_levels(m, backend or engine.rollout(), ctrl, setting, threads)
+    h = float(m.opt.timestep)
+    r = compare(runs, exact, [h / 2**lev for lev in range(setting.levels)])
     need = least_order(caps, integrator)
     p_decl = declared_order(caps, integrator)
     ok = r.passes(ps.floor, need)
@@ -606,6 +745,17 @@ def refinement_check(
         "steps_s": list(r.steps),
         "errors": list(r.errors),
     }
+    projection = ""
+    if ps.projection_bound is not None:
+        c, _ = parameter_projections(m, rod, setting, runs, threads)
+        largest = max(c, key=lambda k: abs(c[k]))
+        ok = ok and all(abs(v) <= ps.projection_bound for v in c.values())
+        values.update(projection=c, projection_bound=ps.projection_bound)
+        projection = (
+            f"; and every parameter's projection |c_k| <= {ps.projection_bound:g} (the relative "
+            f"error of m, L, g or a damper that alone best explains the limit's deviation from "
+            f"the nonlinear reference; largest here: {largest} {c[largest]:+.2g})"
+        )
     why = "(the correct engines' E0 with margin)"
     details = (
         f"open loop, {REALIZATIONS} band-limited forces ({N_MODES} sinusoids in "
@@ -629,6 +779,7 @@ def refinement_check(
             f"zero-order-hold solution, <= {ps.floor:g} {why}, "
             f"and the observed order >= {need:g} "
             + ("(declared order less 0.3)" if p_decl is not None else "(no order declared)")
+            + projection
         ),
         details=details,
     )

@@ -33,7 +33,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cip.names import ROD, cart_damper, hinge_joint, motor, tip_damper, tip_site
+from cip.edits import PARAMETER_EDITS, pendulum_bodies, scale_gravity, scale_length, scale_tip_mass
+from cip.names import ROD, motor
 from cipcore.models import MODEL_NAMES
 from cipcore.noise import ArrayNoise, GainNoise
 from cipcore.params import BalanceParams, ParameterError
@@ -103,20 +104,9 @@ class Fault:
 
 
 # ------------------------------------------------------------ model edits
-def _ids(m: mujoco.MjModel, kind: mujoco.mjtObj, name_of: Callable[[int], str]) -> list[int]:
-    out = []
-    for i in (1, 2):
-        j = mujoco.mj_name2id(m, kind, name_of(i))
-        if j >= 0:
-            out.append(j)
-    return out
-
-
-def _scale_gravity(f: float) -> ModelEdit:
-    def edit(m):
-        m.opt.gravity[2] *= f
-
-    return edit
+def _scaled(edit: Callable[[mujoco.MjModel, float], None], f: float) -> ModelEdit:
+    """``edit`` (one of :data:`cip.edits.PARAMETER_EDITS`) by the factor ``f``."""
+    return lambda m: edit(m, f)
 
 
 def _scale_timestep(f: float) -> ModelEdit:
@@ -126,41 +116,9 @@ def _scale_timestep(f: float) -> ModelEdit:
     return edit
 
 
-def _scale_bias(name_of: Callable[[int], str], f: float) -> ModelEdit:
-    def edit(m):
-        for a in _ids(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name_of):
-            m.actuator_biasprm[a][2] *= f
-
-    return edit
-
-
-def _pendulum_bodies(m) -> list[int]:
-    return [m.jnt_bodyid[j] for j in _ids(m, mujoco.mjtObj.mjOBJ_JOINT, hinge_joint)]
-
-
-def _scale_length(f: float) -> ModelEdit:
-    def edit(m):
-        for b in _pendulum_bodies(m):
-            m.body_ipos[b] *= f
-        for s in _ids(m, mujoco.mjtObj.mjOBJ_SITE, tip_site):
-            m.site_pos[s] *= f
-        # the tip damping force is -gamma m v: its coefficient does not depend on L
-
-    return edit
-
-
-def _scale_tip_mass(f: float) -> ModelEdit:
-    def edit(m):
-        for b in _pendulum_bodies(m):
-            m.body_mass[b] *= f
-            m.body_inertia[b] *= f
-
-    return edit
-
-
 def _add_bob_inertia(kappa: float) -> ModelEdit:
     def edit(m):
-        for b in _pendulum_bodies(m):
+        for b in pendulum_bodies(m):
             L = float(np.linalg.norm(m.body_ipos[b]))
             m.body_inertia[b] += kappa * m.body_mass[b] * L**2
 
@@ -265,16 +223,20 @@ FAULT_TYPES: dict[str, dict] = {
         "noise scaled by nu instead of nu/sqrt(dt)",
         edit_params=lambda p: replace(p, nu=p.nu * math.sqrt(p.dt)),
     ),
-    "cart_damping": _relative("cart damping gamma (1 + s)", partial(_scale_bias, cart_damper)),
-    "tip_damping": _relative("tip damping gamma (1 + s)", partial(_scale_bias, tip_damper)),
-    "pendulum_length": _relative("pendulum length L (1 + s)", _scale_length),
-    "mass_ratio": _relative("tip mass m (1 + s), m/M with it", _scale_tip_mass),
+    "cart_damping": _relative(
+        "cart damping gamma (1 + s)", partial(_scaled, PARAMETER_EDITS["cart_damping"])
+    ),
+    "tip_damping": _relative(
+        "tip damping gamma (1 + s)", partial(_scaled, PARAMETER_EDITS["tip_damping"])
+    ),
+    "pendulum_length": _relative("pendulum length L (1 + s)", partial(_scaled, scale_length)),
+    "mass_ratio": _relative("tip mass m (1 + s), m/M with it", partial(_scaled, scale_tip_mass)),
     "bob_inertia": _fault_type(
         "kappa",
         "bob rotational inertia added, kappa = I/(m L^2) = s",
         lambda s: {"edit_model": _add_bob_inertia(s)},
     ),
-    "gravity": _relative("gravity g (1 + s)", _scale_gravity),
+    "gravity": _relative("gravity g (1 + s)", partial(_scaled, scale_gravity)),
     "timestep": _relative(
         "engine time step dt (1 + s), the controller still assumes dt", _scale_timestep
     ),
