@@ -154,10 +154,11 @@ def closed_loop_table(a: argparse.Namespace) -> None:
 
 def _faults(a: argparse.Namespace, eng, model: str):
     """(kind, [(size, fault), ...]) for each fault of ``--faults``: its sizes of
-    ``--sizes`` that apply to the engine and model."""
+    ``--sizes`` that apply to the engine and model (``--faults ''``: none, the clean
+    rows only)."""
     from validation.faults.catalogue import make_fault
 
-    for kind in a.faults.split(","):
+    for kind in filter(None, a.faults.split(",")):
         faults = [(size, make_fault(kind, size)) for size in map(float, a.sizes.split(","))]
         yield kind, [(z, f) for z, f in faults if not f.not_applicable(eng) and model in f.models]
 

@@ -290,17 +290,6 @@ def _physx():
     return ENGINE
 
 
-@pytest.mark.parametrize("model", ["single", "coupled"])
-def test_physx_passes_refinement_at_the_float32_setting(model):
-    """PhysX (SAPIEN, CPU, float32) on the correct model: the float32 setting passes it
-    through refinement_check (seed 1), order 1."""
-    from validation.checks.agreement import model_file
-
-    c = refinement.refinement_check(model, model_file(model), _physx(), 1)
-    assert c.status == "pass", c.values
-    assert c.values["setting"] == "float32" and abs(c.values["order"] - 1.0) < 0.1
-
-
 def test_physx_coupled_fails_a_1e3_tip_mass_at_the_float32_setting():
     """At the float64 setting the rod's float32 resolution (E0 5e-3 at 1e-5 m) hid a 1e-3
     tip-mass error on the coupled model; at the float32 setting it fails (seed 1)."""

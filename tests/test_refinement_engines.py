@@ -116,7 +116,8 @@ def test_rod_holds_the_tips_at_its_length(engine) -> None:
 @pytest.mark.parametrize("model", ["single", "coupled"])
 def test_refinement_passes(engine, model: str) -> None:
     """Converges to the exact solution within its precision's floor, at least order 0.7
-    (the declared order 1 less the check's slack)."""
+    (the declared order 1 less the check's slack); a float32 engine at its float32
+    setting, order 1 within 0.1."""
     c = refinement_check(model, model_file(model), engine, 1)
     assert c.status == PASS, c.values
     floor = precision_setting(model, engine.capabilities.precision).floor
@@ -124,7 +125,7 @@ def test_refinement_passes(engine, model: str) -> None:
     if engine.capabilities.precision == "float64":
         assert c.values["floor"] == FLOAT64_SETTING.floor and c.values["order"] >= 0.7
     else:
-        assert c.values["setting"] == "float32"
+        assert c.values["setting"] == "float32" and abs(c.values["order"] - 1.0) < 0.1
 
 
 def test_tip_mass_error_fails_refinement(engine) -> None:
