@@ -52,7 +52,7 @@ def one_run(m, backend, rod: str, setting: RefinementSetting) -> tuple[dict, dic
     run of ``backend`` (:func:`validation.checks.refinement.parameter_projections`)."""
     ctrl, exact, _ = excitation(m, rod, setting)
     runs = run_levels(m, backend, ctrl, setting)
-    c, c_lin = parameter_projections(m, rod, setting, runs)
+    c, c_lin, _ = parameter_projections(m, rod, setting, runs)
     return c, c_lin, compare(runs, exact, [1.0] * len(runs)).e0
 
 

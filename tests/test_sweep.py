@@ -122,6 +122,26 @@ def test_interrupted_in_process_keeps_finished_points(tmp_path):
     assert (rep.computed, rep.reused) == (1, 2)
 
 
+def test_interrupted_pool_keeps_the_points_in_progress(tmp_path):
+    """Interrupted after the first point of a pool of 2: the points the pool had started
+    (it waits for them in any case) are kept as well, not only the first."""
+    betas = [20.0 + k for k in range(8)]
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": betas})
+    seen = []
+
+    def stop_after_one(point):
+        seen.append(point)
+        if len(seen) == 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(study, tmp_path / "r", pool=SweepPool(workers=2), on_point=stop_after_one)
+    kept = len(list((tmp_path / "r" / "points").glob("*.json")))
+    assert 2 <= kept <= 8 and kept == len(seen)  # the first one alone before
+    rep = run_sweep(study, tmp_path / "r", pool=SweepPool(workers=1))
+    assert (rep.computed, rep.reused) == (8 - kept, kept)
+
+
 @pytest.mark.parametrize("processes", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_dask_local_cluster_gives_the_same_dataset(tmp_path, processes):
     """A Dask cluster of threads (default) or of worker processes (slow) gives the dataset

@@ -370,6 +370,41 @@ def check_out_dir(option: str, path: str | Path) -> Path:
 
 
 # ---------------------------------------------------------------- signals
+#: Whether signals stay ignored after a run stopped by one (see :func:`interrupt_signals`);
+#: set only by the console script, :func:`validation.cli.main.entry`.
+_AFTER_SIGNAL = {"ignore": False}
+
+
+def ignore_signals_after_interrupt() -> None:
+    """Make :func:`interrupt_signals` leave SIGINT and SIGTERM ignored after a signal.
+
+    For the console script alone, whose process is on its way out once a signal
+    stopped it: Python resets a handler of its own to the default action when the
+    interpreter finalises, and a SIGINT arriving then (a second Ctrl-C, a signal to
+    the process group) would kill the exiting process by it, with status -SIGINT
+    instead of the first signal's (seen once in CI: a run stopped by SIGTERM that
+    printed its message and then ended killed by SIGINT).  A program that calls
+    :func:`validation.cli.main.main` itself keeps its own handlers.
+    """
+    _AFTER_SIGNAL["ignore"] = True
+
+
+def _first_arrival(fd: int, fallback: int) -> int:
+    """The signal that arrived first, from the bytes the C-level handler wrote to ``fd``.
+
+    Python runs the handlers of signals pending together in the order of their
+    numbers (SIGINT, 2, before SIGTERM, 15), not in the order they came, e.g. when
+    both arrive during one long call into C; the wakeup file descriptor
+    (:func:`signal.set_wakeup_fd`) receives each signal's number as it arrives.
+    """
+    try:
+        data = os.read(fd, 4096)
+    except (BlockingIOError, OSError):
+        data = b""
+    order = [b for b in data if b in (signal.SIGINT, signal.SIGTERM)]
+    return int(order[0]) if order else fallback
+
+
 @contextmanager
 def interrupt_signals() -> Iterator[dict]:
     """Turn SIGINT and SIGTERM into KeyboardInterrupt; the dict names the signal received.
@@ -377,32 +412,37 @@ def interrupt_signals() -> Iterator[dict]:
     Installed explicitly, so that it works even where a parent process started
     us with SIGINT ignored.
 
-    The first signal decides: it raises KeyboardInterrupt and names the exit status
-    (:func:`interrupted_status`); a later one is counted in ``got["later"]`` and
-    raises nothing, so that it cannot break off the saving of the finished work.
-    After a signal the process is on its way out, so on leaving the block both
-    signals stay ignored rather than getting their old handlers back: Python resets
-    a handler of its own to the default action when the interpreter finalises, and
-    a SIGINT arriving then (a second Ctrl-C, a signal to the process group) would
-    kill the exiting process by it, with status -SIGINT instead of the first
-    signal's (seen once in CI: a run stopped by SIGTERM that printed its message
-    and then ended killed by SIGINT).  Without a signal the old handlers return.
+    The first signal to arrive decides: it raises KeyboardInterrupt and names the
+    exit status (:func:`interrupted_status`), even where a second one is pending
+    beside it (:func:`_first_arrival`); a later one is counted in ``got["later"]``
+    and raises nothing, so that it cannot break off the saving of the finished work.
+    On leaving the block the old handlers and wakeup descriptor return, except in the
+    console script after a signal, where both signals stay ignored through the
+    interpreter's exit (:func:`ignore_signals_after_interrupt`).
     """
     got: dict[str, int | None] = {"signal": None, "later": 0}
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(read_fd, False)
+    os.set_blocking(write_fd, False)
 
     def handler(signum: int, frame: object) -> None:
         if got["signal"] is not None:
             got["later"] = int(got["later"] or 0) + 1
             return
-        got["signal"] = signum
+        got["signal"] = _first_arrival(read_fd, signum)
         raise KeyboardInterrupt
 
+    old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield got
     finally:
+        keep_ignored = got["signal"] is not None and _AFTER_SIGNAL["ignore"]
         for s, h in old.items():
-            signal.signal(s, signal.SIG_IGN if got["signal"] is not None else h)
+            signal.signal(s, signal.SIG_IGN if keep_ignored else h)
+        signal.set_wakeup_fd(old_fd)
+        os.close(read_fd)
+        os.close(write_fd)
 
 
 def interrupted_status(got: dict) -> tuple[str, int]:

@@ -41,11 +41,19 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from cipcore.atomic import WriteError
-from validation.cli.args import EXIT_FAIL, EXIT_OK, EXIT_SIGINT, EXIT_USAGE, PROG, CLIParser
+from validation.cli.args import (
+    EXIT_FAIL,
+    EXIT_OK,
+    EXIT_SIGINT,
+    EXIT_USAGE,
+    PROG,
+    CLIParser,
+    ignore_signals_after_interrupt,
+)
 from validation.cli.exitcodes import EXIT_CRASH
 
 __all__ = ["COMMANDS", "EXIT_FAIL", "EXIT_OK", "EXIT_USAGE", "add_command", "add_group",
-           "build_parser", "command", "main"]  # fmt: skip
+           "build_parser", "command", "entry", "main"]  # fmt: skip
 
 #: Every command, in the order of the top-level help: name -> ("module[:function]", help);
 #: the function ``register`` unless named.
@@ -265,5 +273,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
 
 
-if __name__ == "__main__":
+def entry() -> None:
+    """The console script ``cip-validate`` (and ``python -m validation.cli.main``).
+
+    :func:`main` with its status as the process's; after a run stopped by SIGINT or
+    SIGTERM both signals stay ignored until the process has exited
+    (:func:`validation.cli.args.ignore_signals_after_interrupt`).
+    """
+    ignore_signals_after_interrupt()
     sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

@@ -177,18 +177,43 @@ def _run_local(workers: int, sd: dict, todo: list[dict], finished, gains: dict) 
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=die_with_parent)
+    futs: dict = {}
+    kept: set = set()
     try:
         futs = {pool.submit(evaluate_point, sd, p, 1, gains.get(point_key(p))): p for p in todo}
         pending = set(futs)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for f in done:
+                kept.add(f)  # handed over once, even where its saving is interrupted
                 finished(futs[f], f.result())
     except BaseException:
-        # interrupted or a point failed: drop the queued points, keep the finished ones
-        pool.shutdown(wait=True, cancel_futures=True)
+        # interrupted, or a point failed: drop the queued points, keep the finished ones
+        try:
+            _keep_points_in_progress(futs, kept, finished)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+def _keep_points_in_progress(futs: dict, kept: set, finished) -> None:
+    """Cancel the queued points and keep each point in progress that finishes.
+
+    The pool waits for its running points in any case, so their results are kept
+    rather than thrown away; a point that failed (a Ctrl-C reaches the workers as
+    well) is dropped.  Waiting raises only if this process is interrupted again
+    where its signals are not the command line's (which count a later signal and
+    break off nothing: :func:`validation.cli.args.interrupt_signals`).
+    """
+    for f in futs:
+        f.cancel()
+    for f, point in futs.items():
+        if f in kept or f.cancelled():
+            continue
+        kept.add(f)
+        if f.exception() is None:
+            finished(point, f.result())
 
 
 def _run_dask(address: str, sd: dict, todo: list[dict], finished, gains: dict) -> None:

@@ -1,0 +1,79 @@
+"""The command line's signal handling (validation.cli.args.interrupt_signals), in process."""
+
+from __future__ import annotations
+
+import signal
+import threading
+
+import pytest
+
+from validation.cli import args as cli_args
+from validation.cli.args import interrupt_signals, interrupted_status
+
+
+def _send_from_helper(*signals: int) -> None:
+    """Send ``signals`` to a helper thread, which runs their C-level handler at once,
+    and return when it is done: Python runs their handlers afterwards, all pending
+    together, on this (the main) thread."""
+
+    def send() -> None:
+        for s in signals:
+            signal.pthread_kill(threading.get_ident(), s)
+
+    t = threading.Thread(target=send)
+    t.start()
+    t.join()
+
+
+@pytest.mark.parametrize("first, second", [(signal.SIGTERM, signal.SIGINT),
+                                           (signal.SIGINT, signal.SIGTERM)])  # fmt: skip
+def test_the_first_signal_to_arrive_decides_when_both_are_pending(first, second):
+    """CPython handles pending signals by number (SIGINT before SIGTERM); the exit status
+    must follow their arrival."""
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    with interrupt_signals() as got:
+        with pytest.raises(KeyboardInterrupt):
+            _send_from_helper(first, second)
+            for _ in range(1000):  # the handlers run between bytecodes
+                pass
+        for _ in range(1000):
+            pass
+    assert got["signal"] == first and got["later"] == 1
+    assert interrupted_status(got)[1] == {signal.SIGINT: 130, signal.SIGTERM: 143}[first]
+    # called in process (not the console script): the old handlers are back
+    assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_a_later_signal_breaks_off_nothing():
+    with interrupt_signals() as got:
+        with pytest.raises(KeyboardInterrupt):
+            _send_from_helper(signal.SIGTERM)
+            for _ in range(1000):
+                pass
+        _send_from_helper(signal.SIGINT)
+        finished = sum(range(1000))  # the saving of finished work, not broken off
+    assert finished == 499500 and got["signal"] == signal.SIGTERM and got["later"] == 1
+
+
+def test_without_a_signal_the_old_handlers_and_wakeup_descriptor_return():
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    with interrupt_signals() as got:
+        pass
+    assert got["signal"] is None
+    assert {s: signal.getsignal(s) for s in before} == before
+    assert signal.set_wakeup_fd(-1) == -1  # none left installed
+
+
+def test_the_console_script_keeps_both_signals_ignored_after_one(monkeypatch):
+    monkeypatch.setitem(cli_args._AFTER_SIGNAL, "ignore", True)
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with interrupt_signals():
+            with pytest.raises(KeyboardInterrupt):
+                _send_from_helper(signal.SIGINT)
+                for _ in range(1000):
+                    pass
+        assert all(signal.getsignal(s) == signal.SIG_IGN for s in before)
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
