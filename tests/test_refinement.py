@@ -319,6 +319,26 @@ def test_the_nonlinear_reference_leaves_float64_mujoco_no_parameter_error(model)
     assert max(abs(v) for v in c_linear.values()) > 5e-7, c_linear
 
 
+def test_the_projection_basis_is_reused_only_for_the_same_file_and_setting():
+    """The second projection of the same runs gives the same numbers (its basis reused);
+    a file edited in place, or another setting, gets a basis of its own."""
+    from cip.edits import scale_gravity
+    from cip.runner import MujocoRollout
+    from validation.checks.agreement import model_file
+
+    m = model_file("single")
+    setting = RefinementSetting(3, n_realizations=2, window=0.5, amplitude=1e-3)
+    ctrl, _, _ = refinement.excitation(m, "soft", setting)
+    runs = refinement.run_levels(m, MujocoRollout, ctrl, setting)
+    first = refinement.parameter_projections(m, "soft", setting, runs)
+    assert refinement.parameter_projections(m, "soft", setting, runs) == first
+    other = RefinementSetting(4, n_realizations=2, window=0.5, amplitude=1e-3)
+    assert refinement.parameter_projections(m, "soft", other, runs).c != first.c
+    scale_gravity(m, 1 + 1e-3)  # in place: the same runs against a file with g 1e-3 larger
+    c = refinement.parameter_projections(m, "soft", setting, runs).c
+    assert c["gravity"] == pytest.approx(first.c["gravity"] - 1e-3, abs=5e-5), (c, first.c)
+
+
 def test_the_float32_projection_flags_a_1e4_cart_damping_error_that_e0_cannot():
     """The float32 stand-in on the coupled model with its cart damping 1e-4 too large
     (seed 1): E0 stays inside the floor (E0 alone flagged this error at 0 of 20 seeds),

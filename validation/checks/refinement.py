@@ -555,6 +555,33 @@ class Projection(NamedTuple):
         return " ~ ".join(self.alike[k])
 
 
+#: the parts of the projection that depend on the model file, the rod and the setting
+#: only (the forces, the exact solution, the sensitivities, the nonlinear reference's
+#: offset, the alike directions), per (file digest, rod, setting): a float32 engine's
+#: selftest runs one check per fault on the same file and forces
+_BASES: dict[tuple, tuple] = {}
+_BASES_KEPT = 8
+
+
+def _projection_basis(model: mujoco.MjModel, rod: str, setting: RefinementSetting,
+                      threads: int) -> tuple:  # fmt: skip
+    import hashlib
+    import pickle
+
+    from cip.linearize import rod_jacobians
+
+    key = (hashlib.sha256(pickle.dumps(model)).hexdigest(), rod, setting)
+    if key not in _BASES:
+        ctrl, exact, x0 = excitation(model, rod, setting)
+        sens = sensitivities(model, rod, x0, ctrl, exact)
+        soft = linear_response(model, rod_jacobians(model, "soft"), x0, ctrl)
+        nonlinear = reference_limit(model, ctrl, setting, threads) - soft
+        while len(_BASES) >= _BASES_KEPT:
+            del _BASES[next(iter(_BASES))]
+        _BASES[key] = (exact, sens, nonlinear, alike_directions(sens))
+    return _BASES[key]
+
+
 def parameter_projections(
     model: mujoco.MjModel,
     rod: str,
@@ -566,16 +593,12 @@ def parameter_projections(
     deviation, from the nonlinear reference (:func:`reference_limit`: the exact solution
     with the linearisation's own error added) and from the exact linear solution alone,
     with the parameters whose directions are alike.  ``runs``: the engine's levels
-    (:func:`run_levels`) under the forces of :func:`excitation` at ``setting``."""
-    from cip.linearize import rod_jacobians
-
-    ctrl, exact, x0 = excitation(model, rod, setting)
+    (:func:`run_levels`) under the forces of :func:`excitation` at ``setting``.  What
+    does not depend on ``runs`` is computed once per model file, rod and setting."""
+    exact, sens, nonlinear, alike = _projection_basis(model, rod, setting, threads)
     y0 = extrapolate(runs, ROUNDOFF)[0]
-    sens = sensitivities(model, rod, x0, ctrl, exact)
-    soft = linear_response(model, rod_jacobians(model, "soft"), x0, ctrl)
-    nonlinear = reference_limit(model, ctrl, setting, threads) - soft
     return Projection(projections(y0 - exact - nonlinear, sens), projections(y0 - exact, sens),
-                      alike_directions(sens))  # fmt: skip
+                      alike)  # fmt: skip
 
 
 def float32_state(base: type) -> type:
