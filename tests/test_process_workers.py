@@ -23,8 +23,12 @@ def always_workers(monkeypatch):
 
 
 @pytest.mark.parametrize("name", WORKER_ENGINES)
-@pytest.mark.parametrize("model", ["single", "coupled"])
+@pytest.mark.parametrize("model", [pytest.param("single", marks=pytest.mark.slow), "coupled"])
 def test_any_process_split_is_bit_identical(name, model, always_workers):
+    """Every split of 3 realisations over 1, 2 and 3 worker processes gives the numbers of
+    one process, to the bit.  The coupled model (its two balancers and the rod's
+    constraint: every path of the single one and more) by default; the single model
+    also with ``-m slow``."""
     engine = engine_or_skip(name)
     assert engine.backend_workers
     params = BalanceParams(beta=20.0, alpha=22.0, gamma=50.0, nu=0.6, tau=0.01, dt=1e-3)
