@@ -2,8 +2,8 @@
 
 Runs ``python -m pytest -q -p no:cacheprovider [PYTEST OPTIONS]`` in a fresh
 process (by default the plain command: pyproject's options, i.e. the default
-markers and one pytest-xdist worker per core) and prints its summary line, the
-wall time, the CPU time (user + system of pytest, its workers and every child
+markers and one pytest-xdist worker per core and one more) and prints its summary
+line, the wall time, the CPU time (user + system of pytest, its workers and every child
 process they waited for) and the load average before and after.  On a shared
 machine the wall time follows the load; the CPU time much less, so compare
 that between runs made under different loads, and only between runs whose host
