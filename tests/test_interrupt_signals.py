@@ -77,3 +77,24 @@ def test_the_console_script_keeps_both_signals_ignored_after_one(monkeypatch):
     finally:
         for s, h in before.items():
             signal.signal(s, h)
+
+
+def test_outside_the_main_thread_it_refuses_and_leaves_no_descriptor_open():
+    import os
+
+    if not os.path.isdir("/proc/self/fd"):
+        pytest.skip("no /proc/self/fd to list the open descriptors")
+    fds = set(os.listdir("/proc/self/fd"))
+    errors = []
+
+    def enter() -> None:
+        try:
+            with interrupt_signals():
+                pass
+        except ValueError as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=enter)
+    t.start()
+    t.join()
+    assert len(errors) == 1 and set(os.listdir("/proc/self/fd")) == fds

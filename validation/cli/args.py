@@ -432,7 +432,12 @@ def interrupt_signals() -> Iterator[dict]:
         got["signal"] = _first_arrival(read_fd, signum)
         raise KeyboardInterrupt
 
-    old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    try:  # ValueError outside the main thread: neither descriptor is left open
+        old_fd = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+    except BaseException:
+        os.close(read_fd)
+        os.close(write_fd)
+        raise
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield got
