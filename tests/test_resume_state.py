@@ -218,7 +218,10 @@ def test_a_stage_failing_after_an_interrupt_signal_is_an_interruption(
     with the stages kept and no crash recorded; without one it stays a crash."""
     import json
 
+    arrived = {"signal": False}
+
     def imports_pandas(*args, **kwargs):
+        arrived["signal"] = signalled  # the signal lands during the stage's import
         raise ImportError("pd_parser.c could not import module pandas")
 
     monkeypatch.setattr(harness.agreement, "rod_length_study", imports_pandas)
@@ -227,8 +230,24 @@ def test_a_stage_failing_after_an_interrupt_signal_is_an_interruption(
     expected = harness.RunInterrupted if signalled else harness.StageCrashed
     with pytest.raises(expected) as exc:
         setting = RunSetting(PROFILES["smoke"], progress=False)
-        run_validation(setting, out, interrupted=lambda: signalled)
+        run_validation(setting, out, interrupted=lambda: arrived["signal"])
     assert exc.value.kept == [STAGES[0]]
     written = json.loads((out / "results.json").read_text())
     assert written["stages_done"] == [STAGES[0]]
     assert ("crashed" in written) is not signalled
+
+
+def test_a_signal_whose_interrupt_was_lost_stops_the_run_before_the_next_stage(counted, tmp_path):
+    """A signal arrived during the second stage, but its KeyboardInterrupt never reached
+    the run (caught on the way): the run stops before the third stage, an interruption
+    with the two stages kept, not a complete run."""
+    import json
+
+    done = []
+    setting = RunSetting(PROFILES["smoke"], figures=False, progress=False)
+    out = tmp_path / "out"
+    with pytest.raises(harness.RunInterrupted) as exc:
+        run_validation(setting, out, on_stage=lambda name, *_: done.append(name),
+                       interrupted=lambda: len(done) >= 2)  # fmt: skip
+    assert exc.value.kept == list(STAGES[:2]) and counted[STAGES[2]] == 0
+    assert json.loads((out / "results.json").read_text())["stages_done"] == list(STAGES[:2])

@@ -389,6 +389,11 @@ def run_validation(
 
     try:
         for name in STAGES:
+            if interrupted is not None and interrupted():
+                # a signal arrived but its KeyboardInterrupt was lost on the way (caught by
+                # a library, or raised in a callback whose exceptions are only printed):
+                # stop before the next stage all the same
+                raise KeyboardInterrupt
             bar.set_postfix_str(name)
             t = time.perf_counter()
             inputs = file_inputs if name in MODEL_FILE_STAGES else {}
