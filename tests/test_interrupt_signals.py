@@ -74,7 +74,10 @@ def test_the_console_script_keeps_both_signals_ignored_after_one(monkeypatch):
                 for _ in range(1000):
                     pass
         assert all(signal.getsignal(s) == signal.SIG_IGN for s in before)
+        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, set())
+        assert {signal.SIGINT, signal.SIGTERM} <= set(blocked)
     finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
         for s, h in before.items():
             signal.signal(s, h)
 

@@ -445,6 +445,10 @@ def interrupt_signals() -> Iterator[dict]:
         keep_ignored = got["signal"] is not None and _AFTER_SIGNAL["ignore"]
         for s, h in old.items():
             signal.signal(s, signal.SIG_IGN if keep_ignored else h)
+        if keep_ignored:  # and blocked: a signal then stays pending through the exit, even
+            # where the interpreter's finalisation sets SIG_DFL back (a run stopped by
+            # SIGTERM that printed its message still ended killed by a later SIGINT, -2)
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         signal.set_wakeup_fd(old_fd)
         os.close(read_fd)
         os.close(write_fd)
