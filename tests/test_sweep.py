@@ -107,17 +107,24 @@ beta = [20.0, 20.5, 21.0, 21.5, 22.0, 22.5, 23.0, 23.5, 24.0, 24.5, 25.0, 25.5]
     xr.testing.assert_identical(open_ds(out / "sweep.nc"), open_ds(clean.dataset_path))
 
 
-def test_interrupted_in_process_keeps_finished_points(tmp_path):
-    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": [20.0, 21.0, 22.0]})
+def _interrupted_sweep(out, betas, workers, after):
+    """Run a reduced sweep over ``betas`` on ``workers`` that a KeyboardInterrupt stops
+    after ``after`` finished points; the points seen before it stopped."""
+    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": betas})
     seen = []
 
-    def stop_after_two(point):
+    def stop(point):
         seen.append(point)
-        if len(seen) == 2:
+        if len(seen) == after:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        run_sweep(study, tmp_path / "r", pool=SweepPool(workers=1), on_point=stop_after_two)
+        run_sweep(study, out, pool=SweepPool(workers=workers), on_point=stop)
+    return study, seen
+
+
+def test_interrupted_in_process_keeps_finished_points(tmp_path):
+    study, _ = _interrupted_sweep(tmp_path / "r", [20.0, 21.0, 22.0], workers=1, after=2)
     rep = run_sweep(study, tmp_path / "r", pool=SweepPool(workers=1))
     assert (rep.computed, rep.reused) == (1, 2)
 
@@ -126,16 +133,7 @@ def test_interrupted_pool_keeps_the_points_in_progress(tmp_path):
     """Interrupted after the first point of a pool of 2: the points the pool had started
     (it waits for them in any case) are kept as well, not only the first."""
     betas = [20.0 + k for k in range(8)]
-    study = small_study(engine="reduced", metrics=("rms",), grid={"beta": betas})
-    seen = []
-
-    def stop_after_one(point):
-        seen.append(point)
-        if len(seen) == 1:
-            raise KeyboardInterrupt
-
-    with pytest.raises(KeyboardInterrupt):
-        run_sweep(study, tmp_path / "r", pool=SweepPool(workers=2), on_point=stop_after_one)
+    study, seen = _interrupted_sweep(tmp_path / "r", betas, workers=2, after=1)
     kept = len(list((tmp_path / "r" / "points").glob("*.json")))
     assert 2 <= kept <= 8 and kept == len(seen)  # the first one alone before
     rep = run_sweep(study, tmp_path / "r", pool=SweepPool(workers=1))

@@ -549,10 +549,15 @@ class Projection(NamedTuple):
     #: the parameters whose directions are alike (:func:`alike_directions`)
     alike: dict[str, tuple]
 
+    @property
+    def largest_key(self) -> str:
+        """The parameter k of the largest |c_k| (the first in :data:`PROJECTED`'s order on
+        a tie)."""
+        return max(self.c, key=lambda j: abs(self.c[j]))
+
     def largest(self) -> str:
         """The parameter of the largest |c_k|, with those alike: ``"a ~ b"``."""
-        k = max(self.c, key=lambda j: abs(self.c[j]))
-        return " ~ ".join(self.alike[k])
+        return " ~ ".join(self.alike[self.largest_key])
 
 
 #: the parts of the projection that depend on the model file, the rod and the setting
@@ -815,13 +820,12 @@ def refinement_check(
     if ps.projection_bound is not None:
         proj = parameter_projections(m, rod, setting, runs, threads)
         c = proj.c
-        largest = max(c, key=lambda k: abs(c[k]))
         ok = ok and all(abs(v) <= ps.projection_bound for v in c.values())
         values.update(projection=c, projection_bound=ps.projection_bound)
         projection = (
             f"; and every parameter's projection |c_k| <= {ps.projection_bound:g} (the relative "
             f"error of m, L, g or a damper that alone best explains the limit's deviation from "
-            f"the nonlinear reference; largest here: {proj.largest()} {c[largest]:+.2g})"
+            f"the nonlinear reference; largest here: {proj.largest()} {c[proj.largest_key]:+.2g})"
         )
     why = "(the correct engines' E0 with margin)"
     details = (

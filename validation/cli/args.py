@@ -376,14 +376,19 @@ _AFTER_SIGNAL = {"ignore": False}
 
 
 def ignore_signals_after_interrupt() -> None:
-    """Make :func:`interrupt_signals` leave SIGINT and SIGTERM ignored after a signal.
+    """Make :func:`interrupt_signals` leave SIGINT and SIGTERM ignored, and blocked
+    (``pthread_sigmask``), after a signal.
 
     For the console script alone, whose process is on its way out once a signal
     stopped it: Python resets a handler of its own to the default action when the
     interpreter finalises, and a SIGINT arriving then (a second Ctrl-C, a signal to
     the process group) would kill the exiting process by it, with status -SIGINT
     instead of the first signal's (seen once in CI: a run stopped by SIGTERM that
-    printed its message and then ended killed by SIGINT).  A program that calls
+    printed its message and then ended killed by SIGINT).  Ignoring alone is not
+    enough where finalisation sets the default action back before the process ends,
+    so both signals are blocked too: a later one stays pending through the exit (a
+    resumed run that printed "interrupted by SIGTERM" ended with -2 on a loaded
+    machine, 1 run in 6, before the block).  A program that calls
     :func:`validation.cli.main.main` itself keeps its own handlers.
     """
     _AFTER_SIGNAL["ignore"] = True
