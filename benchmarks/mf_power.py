@@ -1,21 +1,25 @@
-"""Power of the multifidelity agreement against today's plain sampling, over seeds.
+"""Power of the multifidelity agreement against plain sampling, over seeds.
 
 For each seed (the profile's seed replaced by ``--first-seed + k``), runs the
 time-series agreement checks of both shipped models
-(:func:`validation.checks.agreement.series_model_checks`, the engine's exact twin)
-twice at the same profile: as today (every model on ``series_realizations``) and with
-the multifidelity allocation (the engine on ``--mf-engine`` realisations, its twin and
+(:func:`validation.checks.agreement.series_model_checks`, the engine's exact twin), or
+with ``--stage lambda1`` the lambda1 checks at every gain of the profile
+(:func:`validation.checks.agreement.lyapunov_checks`), twice at the same profile:
+plainly (every model on ``series_realizations`` / ``lyapunov_realizations``, the
+allocation before the quick profile switched multifidelity on) and with the
+multifidelity allocation (the engine on ``--mf-engine`` realisations, its twin and
 the reduced model on ``--mf-twin``; :mod:`validation.checks.multifidelity`).  Per
 check it prints the mean interval half-width of each (the paired checks: the 95 %
 half-width of the full - reduced difference; the bands: the widest band's; the
-slopes: sigma of the difference, the larger slope's), their ratio, the number of
+slopes: sigma of the difference, the larger slope's; lambda1: the engine's 95 %
+half-width, the reduced model's beside it in ``--json``), their ratio, the number of
 seeds at which the check failed or was inconclusive (the engine is correct: every
 failure is false), how often the multifidelity allocation fell back to plain
 sampling, and the engine steps and wall time of each allocation.  The load average
 is printed before and after.
 
     nice -n 10 python benchmarks/mf_power.py [--profile quick] [--seeds 20]
-        [--first-seed 2011] [--mf-engine 3] [--mf-twin 16] [--threads 2]
+        [--first-seed 2011] [--mf-engine 3] [--mf-twin 16] [--threads 2] [--stage lambda1]
         [--faults tip_damping,noise_scale --sizes 0.01,0.03 --fault-seeds 3] [--json FILE]
 
 ``--faults`` also runs the engine with each fault of the catalogue
@@ -41,6 +45,8 @@ from cipcore.scenario import EngineTarget, Scenario
 def half_width(check: dict) -> float:
     """The interval a check decides on (module docstring), NaN where it has none."""
     v = check["values"]
+    if "half_width_1" in v:  # lambda1: the engine's interval
+        return v["half_width_1"]
     if "bands" in v:
         return max(half_width({"values": b}) for b in v["bands"])
     if "slope_low" in v:
@@ -49,12 +55,21 @@ def half_width(check: dict) -> float:
     return (hi - lo) / 2
 
 
-def run_once(profile, engine: str, threads: int) -> tuple[list, float, float, int]:
-    """(check dicts, wall s, CPU s, engine steps) of the series checks of both models."""
+def run_once(profile, engine: str, threads: int, stage: str = "series"
+             ) -> tuple[list, float, float, int]:  # fmt: skip
+    """(check dicts, wall s, CPU s, engine steps) of the series checks of both models, or
+    of the lambda1 checks (``stage`` "lambda1")."""
     from validation.checks import agreement
     from validation.profiles import PAPER_BETA
 
     checks, steps, t0, c0 = [], 0, time.perf_counter(), time.process_time()
+    if stage == "lambda1":
+        got, data = agreement.lyapunov_checks(profile, threads, engine=engine)
+        for row in data["lyapunov"]:
+            full = row["full"]
+            steps += full["n_realizations"] * round(full["duration"] / full["params"]["dt"])
+        return ([c.as_dict() for c in got], time.perf_counter() - t0,
+                time.process_time() - c0, steps)  # fmt: skip
     for model, beta in PAPER_BETA.items():
         scn = Scenario(model, BalanceParams(beta=beta), profile.series_duration,
                        profile.series_realizations, profile.seed_for("series", model),
@@ -126,10 +141,10 @@ def seed_runs(base, a) -> dict[str, list[dict]]:
     """Both allocations at ``a.seeds`` seeds: {"plain": [...], "mf": [...]} rows."""
     rows: dict[str, list[dict]] = {"plain": [], "mf": []}
     for k in range(a.seeds):
-        plain = replace(base, seed=a.first_seed + k)
+        plain = replace(base, seed=a.first_seed + k, mf_engine_realizations=0)
         mf = replace(plain, mf_engine_realizations=a.mf_engine, mf_twin_realizations=a.mf_twin)
         for label, prof in (("plain", plain), ("mf", mf)):
-            checks, wall, cpu, steps = run_once(prof, a.engine, a.threads)
+            checks, wall, cpu, steps = run_once(prof, a.engine, a.threads, a.stage)
             rows[label].append({"seed": prof.seed, "checks": checks, "wall_s": wall,
                                 "cpu_s": cpu, "engine_steps": steps,
                                 "fell_back": fell_back(checks)})  # fmt: skip
@@ -142,9 +157,11 @@ def seed_runs(base, a) -> dict[str, list[dict]]:
 def print_table(base, a, rows: dict[str, list[dict]]) -> list[dict]:
     """The per-check table of :func:`summarise` and the cost lines; returns the table."""
     table = summarise(rows)
-    n = base.series_realizations
-    print(f"\nprofile {a.profile}, engine {a.engine}, {a.seeds} seeds from {a.first_seed}; "
-          f"plain {n} x {base.series_duration:g} s per model, multifidelity engine "
+    stage = getattr(a, "stage", "series")
+    n, duration = ((base.lyapunov_realizations, base.lyapunov_duration) if stage == "lambda1"
+                   else (base.series_realizations, base.series_duration))  # fmt: skip
+    print(f"\nprofile {a.profile}, stage {stage}, engine {a.engine}, {a.seeds} seeds from "
+          f"{a.first_seed}; plain {n} x {duration:g} s per check, multifidelity engine "
           f"{a.mf_engine} + twin and reduced {a.mf_twin}")  # fmt: skip
     print(f"{'check':38s} {'hw plain':>10s} {'hw mf':>10s} {'mf/plain':>8s} {'median':>7s} "
           f"{'wider':>5s} {'fail p/mf':>9s} {'inc p/mf':>8s}")  # fmt: skip
@@ -174,7 +191,7 @@ def fault_runs(base, a) -> list[dict]:
             agreement.run_full = with_fault(kind, size)
             try:
                 for k in range(a.fault_seeds):
-                    plain = replace(base, seed=a.first_seed + k)
+                    plain = replace(base, seed=a.first_seed + k, mf_engine_realizations=0)
                     mf = replace(plain, mf_engine_realizations=a.mf_engine,
                                  mf_twin_realizations=a.mf_twin)  # fmt: skip
                     for j, prof in enumerate((plain, mf)):
@@ -225,6 +242,12 @@ def main() -> int:
     ap.add_argument("--mf-engine", type=int, default=3, help="engine realisations (multifidelity)")
     ap.add_argument("--mf-twin", type=int, default=16, help="twin and reduced realisations")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument(
+        "--stage",
+        choices=("series", "lambda1"),
+        default="series",
+        help="the agreement checks compared (--faults: series only)",
+    )
     ap.add_argument("--faults", default="", help="catalogue faults in the engine, e.g. tip_damping")
     ap.add_argument("--sizes", default="0.01,0.03", help="relative fault sizes")
     ap.add_argument("--fault-seeds", type=int, default=3)
@@ -240,6 +263,8 @@ def main() -> int:
     base = PROFILES[a.profile]
     if not 3 <= a.mf_engine < base.series_realizations:
         ap.error(f"--mf-engine must be in [3, {base.series_realizations}), got {a.mf_engine}")
+    if a.stage == "lambda1" and a.faults:
+        ap.error("--faults applies to --stage series only")
     if min(a.threads, a.fault_seeds) < 1 or a.seeds < 0 or a.mf_twin < base.series_realizations:
         ap.error(f"--fault-seeds and --threads must be >= 1, --seeds >= 0 and --mf-twin >= "
                  f"{base.series_realizations}")  # fmt: skip

@@ -28,7 +28,7 @@ from cipcore.params import BalanceParams, ParameterError, check_count, whole_ste
 from cipcore.results import LyapunovResult, check_transient
 from cipcore.scenario import Execution, Scenario
 from cipcore.schema import check_duration
-from cipcore.seeds import tangent_rng
+from cipcore.seeds import tangent_deviation
 from cipcore.stats import mean_ci95
 
 
@@ -158,20 +158,17 @@ def _start(
     """A runner for realisations ``block`` at a random deviation of norm epsilon, and
     the renormaliser of its deviation.
 
-    Angles and delay history of realisation k come from the independent stream
-    ``SeedSequence(seed, spawn_key=(k, 1))``; in the coupled model both angles
-    start equal (on the rod constraint to first order).
+    Angles and delay history of realisation k: :func:`cipcore.seeds.tangent_deviation`
+    (the stream ``SeedSequence(seed, spawn_key=(k, 1))``; in the coupled model both
+    angles start equal, on the rod constraint to first order).
     """
     r = CIPRunner(
         model, params, physical, block.stop - block.start, 0.0, threads=1, backend=backend,
         mj_model=mj_model,
     )  # fmt: skip
     for j, k in enumerate(range(block.start, block.stop)):
-        rng = tangent_rng(seed, k)
-        r.state[j, r.i_th] = rng.standard_normal(r.nc) / physical.pendulum_length
-        r.e_hist[j] = rng.standard_normal((r.d, r.nc))
-    if r.nc == 2:
-        r.state[:, r.i_th] = r.state[:, r.i_th].mean(axis=1, keepdims=True)
+        e0, r.e_hist[j] = tangent_deviation(seed, k, r.nc, r.d)
+        r.state[j, r.i_th] = e0 / physical.pendulum_length
     renorm = _Renormaliser(r)
     renorm.rescale(r, epsilon / renorm.norm(r))
     return r, renorm

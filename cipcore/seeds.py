@@ -51,6 +51,27 @@ def tangent_rng(seed: int, realization: int) -> np.random.Generator:
     return np.random.Generator(np.random.PCG64(ss))
 
 
+def tangent_deviation(seed: int, realization: int, n_controllers: int,
+                      delay_steps: int) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """A rigid body's initial Benettin deviation of one realisation, before its scaling.
+
+    Returns (e0, history): e0 (C,) the balancing errors L theta_i (m, each angle a
+    standard-normal draw over L), then history (d, C) the delayed errors at steps
+    -d .. -1, from :func:`tangent_rng` in that order; carts and velocities start at 0.
+    In the coupled model (C = 2) both angles start at their mean (on the rod's
+    constraint to first order).  The engines' Benettin estimator
+    (:func:`cip.lyapunov.lyapunov_full`) and their exact twins'
+    (:func:`reduced.twin_lyapunov.lyapunov_twin`) start from it, so that realisation r
+    of both follows the same deviation.
+    """
+    rng = tangent_rng(seed, realization)
+    e0 = rng.standard_normal(n_controllers)
+    history = rng.standard_normal((delay_steps, n_controllers))
+    if n_controllers == 2:
+        e0[:] = e0.mean()
+    return e0, history
+
+
 def purpose_rng(seed: int, purpose: str, *key: int) -> np.random.Generator:
     """A generator for ``purpose`` (a name in :data:`PURPOSES`), further keyed by ``key``."""
     if purpose not in PURPOSES:

@@ -63,7 +63,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from cipcore.noise import GainNoise
-from cipcore.params import ParameterError, check_positive
+from cipcore.params import BalanceParams, ParameterError, check_positive
 from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import Trajectory
 
@@ -141,6 +141,16 @@ class TwinParams:
         return asdict(self)
 
 
+def twin_coefficients(twin: TwinParams, params: BalanceParams) -> np.ndarray:
+    """The kernel's ``coef`` (:func:`reduced._twin_kernel.advance_twin`) for ``twin``
+    under the controller of ``params`` (beta in 1/s^2, the noise scale nu / sqrt(dt))."""
+    return np.array([
+        twin.alpha, twin.gamma_tip, twin.gamma_cart, twin.mass_ratio, params.beta,
+        params.noise_scale, twin.dt, 1.0 if twin.rod else 0.0, twin.rod_stiffness,
+        twin.rod_damping, twin.rod_mobility(), twin.rod_regulariser,
+    ])  # fmt: skip
+
+
 def simulate_twin(
     scenario: Scenario,
     twin: TwinParams,
@@ -167,11 +177,7 @@ def simulate_twin(
     state = np.zeros((nreal, nc, 4))
     state[:, :, 1] = run.amplitude
     hist = np.full((nreal, nc, d), run.amplitude)
-    coef = np.array([
-        twin.alpha, twin.gamma_tip, twin.gamma_cart, twin.mass_ratio, params.beta,
-        params.noise_scale, twin.dt, 1.0 if twin.rod else 0.0, twin.rod_stiffness,
-        twin.rod_damping, twin.rod_mobility(), twin.rod_regulariser,
-    ])  # fmt: skip
+    coef = twin_coefficients(twin, params)
     minv = twin.inverse_mass()
     mstep = twin.step_matrix()
     scheme = TWIN_SCHEMES[twin.integrator]

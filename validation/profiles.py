@@ -46,10 +46,11 @@ class Profile:
     amplitude_float32: float = 1e-5
     series_duration: float = 100.0
     series_realizations: int = 8
-    # multifidelity agreement (validation.checks.multifidelity): the engine's series on
-    # this many realisations, its twin and the reduced model on mf_twin_realizations
-    # (same noise, nested); 0: off, every model on series_realizations
-    mf_engine_realizations: int = 0
+    # multifidelity agreement (validation.checks.multifidelity): the engine's series and
+    # lambda1 on this many realisations, its twin and the reduced model on
+    # mf_twin_realizations (same noise, nested); 0: off, every model on
+    # series_realizations and lyapunov_realizations (quick: on, 3 and 16)
+    mf_engine_realizations: int = 3
     mf_twin_realizations: int = 16
     decimate: int = 5  # record every 5 ms
     spectrum_segment: float = 10.0  # s
@@ -138,6 +139,7 @@ PROFILES = {
     "quick": Profile(name="quick"),
     "paper": Profile(
         name="paper",
+        mf_engine_realizations=0,  # the paper's realisation counts, every model plainly
         lyapunov_duration=500.0,
         lyapunov_realizations=16,
         series_duration=200.0,
@@ -162,6 +164,7 @@ PROFILES = {
     # a tiny profile for the test suite: every code path, seconds
     "smoke": Profile(
         name="smoke",
+        mf_engine_realizations=0,  # 3 realisations: nothing left to save
         clip_duration=0.0,
         lyapunov_gains={"single": (19.5, 23.0), "coupled": (20.5, 23.0)},
         lyapunov_duration=20.0,

@@ -65,47 +65,135 @@ class TargetKeywords(TypedDict, total=False):
 def lyapunov_checks(
     profile: Profile, threads: int | None, **target: Unpack[TargetKeywords]
 ) -> tuple[list[Check], dict]:
-    """lambda1 of both engines at each gain of the profile (CI-overlap rule)."""
+    """lambda1 of both engines at each gain of the profile (CI-overlap rule).
+
+    Where the profile switches the multifidelity allocation on
+    (``Profile.mf_engine_realizations``), the engine's lambda1 is estimated from that
+    many engine realisations with its exact twin's lambda1
+    (:func:`reduced.twin_lyapunov.lyapunov_twin`, the same noise and initial deviation)
+    over ``mf_twin_realizations`` as the control variate, and the reduced model runs
+    those too (:func:`lambda1_multifidelity`); plain sampling where that interval would
+    be wider than plain sampling's.
+    """
     from cip.mjcf_params import read_mapping
 
     t = EngineTarget(**target)
     checks, rows = [], []
     precision = rigid_engine(t.engine).capabilities.precision
     epsilon = profile.lyapunov_epsilon(precision)
+    note = lyapunov_epsilon_note(profile, precision)
     for model, gains in profile.lyapunov_gains.items():
         m = model_file(model, t.files, t.integrator)
-        phys = read_mapping(m).physical()
+        mapping = read_mapping(m)
+        body = {"physical": mapping.physical(), "mj_model": m, "epsilon": epsilon,
+                "threads": threads}  # fmt: skip
         for beta in gains:
             p = BalanceParams(beta=beta)
             seed = profile.seed_for("lyapunov", model, beta)
             scn = Scenario(model, p, profile.lyapunov_duration, profile.lyapunov_realizations,
                            seed)  # fmt: skip
+            fallback = ""
+            if profile.mf_engine_realizations:
+                got = lambda1_multifidelity(scn, t.engine, mapping, profile, body, note)
+                if not isinstance(got, str):
+                    checks.append(got[0])
+                    rows.append(got[1])
+                    continue
+                fallback = f"; {got}"
             red = lyapunov(scn, execution=Execution(threads=threads))
-            full = rigid_engine(t.engine).lyapunov(
-                model, p, scn.duration, scn.realizations, seed, physical=phys, mj_model=m,
-                epsilon=epsilon, threads=threads,
-            )  # fmt: skip
-            status, v = ci_overlap(full.lambda1, full.ci95, red.lambda1, red.ci95)
+            full = rigid_engine(t.engine).lyapunov(model, p, scn.duration, scn.realizations,
+                                                   seed, **body)  # fmt: skip
             rows.append(
                 {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
             )
-            checks.append(
-                Check(
-                    name=f"agreement.lambda1.{model}.beta={beta:g}",
-                    status=status,
-                    values={
-                        "full": {"value": full.lambda1, "ci95": list(full.ci95), "se": full.sem},
-                        "reduced": {"value": red.lambda1, "ci95": list(red.ci95), "se": red.sem},
-                        **v,
-                    },
-                    tolerance="95% CIs overlap: pass if |difference| <= larger half-width, "
-                    "fail if the intervals are disjoint",
-                    details=f"{profile.lyapunov_realizations} realisations x "
-                    f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both engines, "
-                    f"Benettin deviation {epsilon:g} m{lyapunov_epsilon_note(profile, precision)}",
-                )
-            )
+            details = (f"{profile.lyapunov_realizations} realisations x "
+                       f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both "
+                       f"engines, Benettin deviation {epsilon:g} m{note}{fallback}")  # fmt: skip
+            checks.append(lambda1_check(model, beta, full.lambda1, full.ci95, full.sem, red,
+                                        details))  # fmt: skip
     return checks, {"lyapunov": rows}
+
+
+def lambda1_check(model: str, beta: float, value: float, ci95, se: float, red,
+                  details: str, **extra) -> Check:  # fmt: skip
+    """``agreement.lambda1.<model>.beta=<beta>``: the engine's lambda1 (``value``, its 95 %
+    interval ``ci95`` and standard error ``se``, 1/s) against the reduced model's ``red``
+    (a :class:`cipcore.results.LyapunovResult`) by the CI-overlap rule
+    (:func:`validation.checks.stats.ci_overlap`); ``extra`` joins the engine's values."""
+    status, v = ci_overlap(value, ci95, red.lambda1, red.ci95)
+    return Check(
+        name=f"agreement.lambda1.{model}.beta={beta:g}", status=status,
+        values={"full": {"value": value, "ci95": list(ci95), "se": se, **extra},
+                "reduced": {"value": red.lambda1, "ci95": list(red.ci95), "se": red.sem}, **v},
+        tolerance="95% CIs overlap: pass if |difference| <= larger half-width, "
+        "fail if the intervals are disjoint", details=details,
+    )  # fmt: skip
+
+
+def lambda1_multifidelity(
+    scenario: Scenario, engine: str, mapping, profile: Profile, body: dict, note: str
+) -> tuple[Check, dict] | str:
+    """One gain's lambda1 check with the engine on ``profile.mf_engine_realizations``.
+
+    The engine's per-realisation exponents y (n of them) and its twin's x (m =
+    max(mf_twin_realizations, lyapunov_realizations), the first n paired: same noise,
+    same initial deviation, same norm) give the two-model MFMC estimate of the
+    engine's lambda1 with alpha = 1, mean_n(y - x) + mean_m(x)
+    (:func:`validation.checks.multifidelity.mfmc_estimate`); the
+    reduced model runs the m realisations.  ``scenario`` holds the plain allocation
+    (lyapunov_realizations), ``mapping`` the model file's
+    (:func:`cip.mjcf_params.read_mapping`), ``body`` the engine's keywords.  Returns
+    why, a line for the plain check's details, where the estimate's interval is wider
+    than plain sampling's would be at the same spread (the twin does not follow the
+    engine); else (the check, the stage's row).
+    """
+    import time
+
+    from reduced.twin import TwinParams
+    from reduced.twin_lyapunov import lyapunov_twin
+    from validation.checks import multifidelity as mfe
+
+    n_plain = scenario.realizations
+    n, m = profile.mf_engine_realizations, max(profile.mf_twin_realizations, n_plain)
+    if not mfe.MIN_PAIRED <= n < n_plain:
+        raise ParameterError(f"mf_engine_realizations must be 0 or in [{mfe.MIN_PAIRED}, "
+                             f"lyapunov_realizations = {n_plain}), got {n}")  # fmt: skip
+    model, p, seed, duration = scenario.model, scenario.params, scenario.seed, scenario.duration
+    execution = Execution(threads=body["threads"])
+    twin = TwinParams(**rigid_engine(engine).twin_terms(mapping))
+    t0 = time.perf_counter()
+    full = rigid_engine(engine).lyapunov(model, p, duration, n, seed, **body)
+    t1 = time.perf_counter()
+    cheap = replace(scenario, realizations=m)
+    tw = lyapunov_twin(cheap, twin, epsilon=body["epsilon"], execution=execution)
+    red = lyapunov(cheap, execution=execution)
+    w = (t1 - t0) / n / max((time.perf_counter() - t1) / m, 1e-9)
+    # alpha fixed at 1 (engine - twin over n, plus the twin over m): the twin models the
+    # engine itself, alpha* = 1 where it follows it, and 3 pairs cannot estimate alpha
+    # (an unrelated control reached rho = -0.9995 at 3 pairs); with alpha given, the
+    # residual's variance is unbiased with n - 1 degrees of freedom
+    est = mfe.mfmc_estimate(full.per_realization, tw.per_realization, alpha=1.0)
+    # plain sampling's interval at the twin's spread over m (the engine's where the twin
+    # follows it; est.sigma_y would count an unrelated control's own spread twice)
+    plain = mfe.t975(n_plain - 1) * float(np.std(tw.per_realization, ddof=1)) / np.sqrt(n_plain)
+    if not est.half_width <= plain:
+        return (f"multifidelity not used: with the engine on {n} and its twin on {m} "
+                f"realisations the interval would be {est.half_width / plain:.3g} times "
+                f"plain sampling's (rho {est.rho:.6g}), so the engine ran {n_plain}")  # fmt: skip
+    details = (
+        f"multifidelity: engine {n} x {duration:g} s, its {twin.integrator} twin and the "
+        f"reduced model {m} x {duration:g} s (same noise, nested; plain sampling: {n_plain} "
+        f"x {duration:g} s), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, "
+        f"1 - rho {1 - est.rho:.2g}, half-width {est.half_width / plain:.3g} x plain sampling's, "
+        f"cost ratio engine : twin + reduced w = {w:.3g} (measured)"
+    )
+    mf = {"multifidelity": est.as_dict(), "n": n, "n_twin": m,
+          "twin": {"value": tw.lambda1, "ci95": list(tw.ci95), "se": tw.sem}}  # fmt: skip
+    check = lambda1_check(model, p.beta, est.mean, est.ci95, est.se, red, details, **mf)
+    engine_row = {**full.as_dict(), "lambda1": est.mean, "ci95": list(est.ci95),
+                  "multifidelity": est.as_dict()}  # fmt: skip
+    return check, {"model": model, "beta": p.beta, "full": engine_row,
+                   "reduced": red.as_dict(), "twin": tw.as_dict()}  # fmt: skip
 
 
 @dataclass

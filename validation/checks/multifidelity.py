@@ -164,7 +164,8 @@ def mfmc_estimate(y: np.ndarray, x: np.ndarray, alpha: float | None = None) -> M
     -------
     MFEstimate
         mu_hat = ybar_n + alpha (xbar_m - xbar_n); its variance estimated as
-        s^2(y - alpha x) / n + alpha^2 s_x^2 / m (s_x over all m), which equals
+        s^2(y - alpha x) / n + alpha^2 s_x^2 / m (s_x over all m; s^2(y - alpha x)
+        with n - 2 degrees of freedom when alpha is estimated, n - 1 when given), which equals
         the MFMC formula sigma_y^2 / n [1 - (1 - n/m) rho^2] at alpha*; the 95 %
         interval is Student-t with Welch-Satterthwaite degrees of freedom
         (n - 2 for the first part when alpha is estimated, n - 1 when given;
@@ -178,7 +179,8 @@ def mfmc_estimate(y: np.ndarray, x: np.ndarray, alpha: float | None = None) -> M
     if not estimated:
         a = float(alpha)
     mean = float(y.mean() + a * (x.mean() - xp.mean()))
-    v1 = float((y - a * xp).var(ddof=1) / n)
+    # the residual of a fitted line (intercept and alpha) has n - 2 degrees of freedom
+    v1 = float((y - a * xp).var(ddof=2 if estimated else 1) / n)
     v2 = float(a * a * x.var(ddof=1) / m) if m > 1 else 0.0
     df = welch_df(v1, n - 2 if estimated else n - 1, v2, max(m - 1, 1))
     se = float(np.sqrt(v1 + v2))

@@ -1,0 +1,123 @@
+"""lambda1 of the exact twin, realisation by realisation as the engine's, and the
+multifidelity lambda1 check built on it (:mod:`reduced.twin_lyapunov`,
+:func:`validation.checks.agreement.lambda1_multifidelity`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cip.mjcf_params import read_mapping
+from cipcore.params import BalanceParams, ParameterError
+from cipcore.registry import get_engine
+from cipcore.scenario import Execution, Scenario
+from reduced.twin import TwinParams
+from reduced.twin_lyapunov import lyapunov_twin
+from validation.checks.agreement import lyapunov_checks, model_file
+from validation.profiles import PROFILES
+
+
+def _twin(model: str, **change) -> tuple[TwinParams, dict]:
+    m = model_file(model)
+    mapping = read_mapping(m)
+    tw = TwinParams(**get_engine("mujoco").twin_terms(mapping))
+    return replace(tw, **change), {"mj_model": m, "physical": mapping.physical()}
+
+
+@pytest.mark.parametrize("model, floor", [("single", 1e-13), ("coupled", 1e-7)])
+def test_twin_follows_mujoco_realisation_by_realisation(model: str, floor: float) -> None:
+    """Same noise, deviation, norm and renormalisation: MuJoCo's per-realisation
+    exponents equal the twin's to round-off (single) and to the soft rod's
+    second-order terms (coupled, 2e-10 over 200 s, 2e-8 over 12 s), while they spread by 1e-2."""
+    tw, body = _twin(model)
+    scn = Scenario(model, BalanceParams(beta=21.0), 12.0, 3, 77)
+    twin = lyapunov_twin(scn, tw, execution=Execution(threads=1))
+    eng = get_engine("mujoco").lyapunov(model, scn.params, 12.0, 3, 77, threads=1, **body)
+    assert np.abs(twin.per_realization - eng.per_realization).max() < floor
+    assert np.ptp(eng.per_realization) > 1e-3
+    assert twin.transient == eng.transient == 1.2
+
+
+def test_another_gain_does_not_follow() -> None:
+    """The pairing is the dynamics', not the noise's alone: a twin 1 % stiffer in
+    gravity is off by far more than the floor above."""
+    tw, body = _twin("single")
+    scn = Scenario("single", BalanceParams(beta=21.0), 12.0, 3, 77)
+    eng = get_engine("mujoco").lyapunov("single", scn.params, 12.0, 3, 77, threads=1, **body)
+    off = lyapunov_twin(scn, replace(tw, alpha=tw.alpha * 1.01))
+    assert np.abs(off.per_realization - eng.per_realization).max() > 1e-4
+
+
+def test_threads_and_realisation_split_do_not_change_a_number() -> None:
+    tw, _ = _twin("coupled")
+    scn = Scenario("coupled", BalanceParams(beta=20.5), 6.0, 5, 3)
+    one = lyapunov_twin(scn, tw, execution=Execution(threads=1)).per_realization
+    two = lyapunov_twin(scn, tw, execution=Execution(threads=2)).per_realization
+    head = lyapunov_twin(replace(scn, realizations=2), tw).per_realization
+    np.testing.assert_array_equal(one, two)
+    np.testing.assert_array_equal(one[:2], head)  # nested: the first realisations are the same
+
+
+@pytest.mark.parametrize(
+    "model, change, match",
+    [("single", {"dt": 2e-3}, "twin.dt must equal"), ("single", {"rod": True}, "a rod needs"),
+     ("coupled", {}, "epsilon must be in")],
+)  # fmt: skip
+def test_bad_input_is_one_line(model: str, change: dict, match: str) -> None:
+    tw, _ = _twin(model, **change)
+    scn = Scenario(model, BalanceParams(beta=21.0), 2.0, 2, 1)
+    with pytest.raises(ParameterError, match=match):
+        lyapunov_twin(scn, tw, epsilon=1e-2 if not change else 1e-7)
+
+
+# ------------------------------------------------------------------ the lambda1 check
+def _profile(**change):
+    settings = {"lyapunov_gains": {"coupled": (20.5,)}, "lyapunov_duration": 8.0,
+                "lyapunov_realizations": 4, "mf_engine_realizations": 3,
+                "mf_twin_realizations": 8}  # fmt: skip
+    return replace(PROFILES["smoke"], **(settings | change))
+
+
+def test_lambda1_by_the_exact_twin() -> None:
+    """MuJoCo on 3 realisations, its twin and the reduced model on 8: the estimate is the
+    twin's mean to the pairing's floor, with the twin's 8-realisation interval."""
+    (check,), data = lyapunov_checks(_profile(), 1)
+    v = check.values["full"]
+    assert (v["n"], v["n_twin"]) == (3, 8)
+    mf = v["multifidelity"]
+    assert 1 - mf["rho"] < 1e-12 and abs(mf["alpha"] - 1) < 1e-6
+    assert abs(v["value"] - v["twin"]["value"]) < 1e-8
+    assert check.status == "pass"
+    assert "multifidelity: engine 3 x 8 s, its Euler twin and the reduced model 8 x 8 s" in (
+        check.details
+    )
+    (row,) = data["lyapunov"]
+    assert row["full"]["n_realizations"] == 3 and row["reduced"]["n_realizations"] == 8
+    assert row["full"]["lambda1"] == v["value"]
+
+
+def test_uncorrelated_twin_falls_back_to_plain_sampling(monkeypatch) -> None:
+    """A control under other noise (rho ~ 0) widens the interval: the engine runs the
+    plain allocation and the details say why."""
+    import reduced.twin_lyapunov as tl
+
+    real = tl.lyapunov_twin
+    monkeypatch.setattr(
+        tl, "lyapunov_twin", lambda scn, tw, **kw: real(replace(scn, seed=scn.seed + 1), tw, **kw)
+    )
+    (check,), data = lyapunov_checks(_profile(), 1)
+    assert "multifidelity" not in check.values["full"]
+    assert data["lyapunov"][0]["full"]["n_realizations"] == 4
+    assert "multifidelity not used: with the engine on 3 and its twin on 8" in check.details
+
+
+def test_engine_realisations_out_of_range_is_one_line() -> None:
+    with pytest.raises(ParameterError, match=r"mf_engine_realizations must be 0 or in \[3, "):
+        lyapunov_checks(_profile(mf_engine_realizations=4), 1)
+
+
+def test_quick_profile_runs_lambda1_by_multifidelity() -> None:
+    assert PROFILES["quick"].mf_engine_realizations == 3
+    assert PROFILES["paper"].mf_engine_realizations == 0 == PROFILES["smoke"].mf_engine_realizations
