@@ -226,3 +226,23 @@ def test_engine_realisations_out_of_range_is_one_line():
         agreement.multifidelity_series(
             *_series_args(profile)[0], profile, **_series_args(profile)[1]
         )
+
+
+def test_a_control_fitted_to_three_pairs_is_not_trusted():
+    """Three pairs on a line of slope -0.5 (rho = -1): an alpha fitted to them would leave
+    no residual and an interval of the twin's alone, narrower than plain sampling's (PhysX's
+    coupled 15 Hz band failed so, 7 December). With alpha = 1 the engine - twin spread
+    counts, the interval is wider than plain sampling's and the series falls back."""
+    from validation.checks.agreement import mf_equivalence
+
+    rng = np.random.default_rng(5)
+    twin = rng.standard_normal(16)
+    full = -0.5 * twin[:3]
+    _, v, ratio = mf_equivalence(full, np.zeros(16), twin, twin, 8, rng)
+    assert v["multifidelity"]["alpha"] == 1.0 and v["multifidelity"]["rho"] < -0.999
+    assert ratio > 1
+    fitted = mf.mfmc_estimate(full, twin)  # what the fitted alpha would claim
+    assert (
+        fitted.v_paired < 1e-20
+        and fitted.half_width < v["difference_ci95"][1] - v["difference_mean"]
+    )

@@ -651,17 +651,17 @@ def trajectory_check(model: str, full: Trajectory, red: Trajectory, details: str
 #: The multifidelity agreement rule (Profile.mf_engine_realizations > 0).
 MF_RULE = (
     "multifidelity paired TOST (validation.checks.multifidelity, two-model MFMC): the full - "
-    "reduced difference estimated as [full - alpha twin] over the engine's n realisations + "
-    "alpha [twin - reduced] over the twin's m (same noise, nested; alpha the optimal "
-    "control-variate coefficient from the n pairs); its 95% t-interval (MFMC variance, "
-    "Welch-Satterthwaite df) within +- margin, margin = min(|twin - reduced|, |envelope twin - "
-    "reduced|) over the m (paired mean + 95% half-width) + the multifidelity half-width"
+    "reduced difference estimated as [full - twin] over the engine's n realisations + "
+    "[twin - reduced] over the twin's m (same noise, nested; alpha = 1: the twin models the "
+    "engine); its 95% t-interval (MFMC variance, Welch-Satterthwaite df) within +- margin, "
+    "margin = min(|twin - reduced|, |envelope twin - reduced|) over the m (paired mean + 95% "
+    "half-width) + the multifidelity half-width"
 )
 MF_SLOPE_RULE = (
     "the engine's realisation-mean log spectrum by the twin as control variate (per bin, n "
-    "engine and m twin realisations), two power laws fitted to it; standard error by the "
-    "paired bootstrap (n pairs and the m - n further twins resampled apart); against the "
-    "reduced model's over m: pass within 2 sigma, fail beyond 3 sigma"
+    "engine and m twin realisations, alpha = 1), two power laws fitted to it; standard error "
+    "by the paired bootstrap (n pairs and the m - n further twins resampled apart); against "
+    "the reduced model's over m: pass within 2 sigma, fail beyond 3 sigma"
 )
 
 
@@ -698,8 +698,12 @@ def mf_equivalence(
     ``full``: (n,) the engine's values; ``red``, ``twin``, ``env``: (m,) the reduced
     model's, the twin's and the envelope twin's, the first n under the engine's noise.
     Returns (status, values, the half-width over the one plain sampling of ``n_plain``
-    engine realisations would have at the same sigma_y,
-    :meth:`validation.checks.multifidelity.MFEstimate.plain_half_width`; 0 where both vanish).
+    engine realisations would have at the twin's spread over the m, sigma_y where the twin
+    follows the engine; 0 where both vanish).
+
+    alpha is 1, not estimated: the twin models the engine itself (alpha* = 1 where it
+    follows it), and an alpha fitted to 3 pairs can be anything (PhysX's coupled 15 Hz
+    band fitted alpha = -0.50 at rho = -0.9997 from 3 pairs and failed, 7 December).
     """
     from validation.checks import multifidelity as mfe
 
@@ -708,15 +712,15 @@ def mf_equivalence(
     y, x = mfe.finite_nested(a - r[: a.size], np.asarray(twin, dtype=float).ravel() - r)
     if y.size < mfe.MIN_PAIRED:
         return INCONCLUSIVE, {"n": int(y.size), "reason": "too few finite pairs"}, float("inf")
-    est = mfe.mfmc_estimate(y, x)
+    est = mfe.mfmc_estimate(y, x, alpha=1.0)
     margin = min(_known(x), _known(np.asarray(env, dtype=float).ravel() - r)) + est.half_width
     lo, hi = est.ci95
     status = tost_status(lo, hi, margin)
-    plain = est.plain_half_width(n_plain)  # at the same sigma_y, from every sample
+    plain = mfe.t975(n_plain - 1) * float(np.std(x, ddof=1)) / np.sqrt(n_plain)
     ratio = est.half_width / plain if plain > 0 else (0.0 if est.half_width == 0 else np.inf)
     rf = r[np.isfinite(r)]
     ref, ref_se = float(rf.mean()), float(rf.std(ddof=1) / np.sqrt(rf.size))
-    boot = mfe.bootstrap_interval(y, x, rng, 500)
+    boot = mfe.bootstrap_interval(y, x, rng, 500, alpha=1.0)
     return (
         status,
         {
@@ -767,15 +771,8 @@ def mf_slopes(full: SeriesMetrics, twin: SeriesMetrics, red: SeriesMetrics, prof
     ip = np.vstack([np.arange(n), rng.integers(0, n, (nb, n))])
     ix = np.vstack([np.arange(n, m), n + rng.integers(0, m - n, (nb, m - n))])
     ye, xp = le[ip], lt[ip]  # (1 + nb, n, bins)
-    xc = xp - xp.mean(axis=1, keepdims=True)
-    vx = (xc * xc).sum(axis=1)
-    cov = (xc * (ye - ye.mean(axis=1, keepdims=True))).sum(axis=1)
-    # a resample of one pair drawn n times keeps the sample's alpha (row 0: the sample)
-    one = (ip.min(axis=1) == ip.max(axis=1))[:, None] | ~(vx > 0)
-    alpha = np.where(one, 0.0, cov / np.where(one, 1.0, vx))
-    alpha = np.where(one, alpha[:1], alpha)
     xall = np.concatenate([xp, lt[ix]], axis=1).mean(axis=1)
-    est = ye.mean(axis=1) + alpha * (xall - xp.mean(axis=1))  # (1 + nb, bins)
+    est = ye.mean(axis=1) + (xall - xp.mean(axis=1))  # (1 + nb, bins); alpha = 1
     fits = metrics.broken_lines(lf, est)
     # the twin's own slopes over its m: plain sampling's SE at n_plain, scaled from them
     twin_se = np.std(metrics.broken_lines(lf, xall[1:]), axis=0, ddof=1) * np.sqrt(m / n_plain)

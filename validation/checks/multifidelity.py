@@ -278,13 +278,14 @@ def beats_plain(rho: float, n: int, m: int, n_plain: int) -> bool:
 
 
 def bootstrap_interval(y: np.ndarray, x: np.ndarray, rng: np.random.Generator,
-                       n_bootstrap: int = 1000) -> tuple[float, float]:  # fmt: skip
+                       n_bootstrap: int = 1000, alpha: float | None = None
+                       ) -> tuple[float, float]:  # fmt: skip
     """95 % percentile bootstrap interval of :func:`mfmc_estimate`'s mean, paired structure kept.
 
     Each resample draws n of the paired (y_i, x_i) with replacement and, apart,
-    m - n of the extra x; alpha* is re-estimated in each.  A resample whose x
-    pairs are constant (one pair drawn n times: 1 in 9 resamples for n = 3) keeps
-    the full sample's alpha*.
+    m - n of the extra x; alpha is ``alpha`` where given, else alpha* re-estimated in
+    each.  A resample whose x pairs are constant (one pair drawn n times: 1 in 9
+    resamples for n = 3) keeps the full sample's alpha*.
     """
     y, x = _check_samples(y, x)
     n, m = y.size, x.size
@@ -296,6 +297,8 @@ def bootstrap_interval(y: np.ndarray, x: np.ndarray, rng: np.random.Generator,
     cov = (xc * (yb - yb.mean(axis=1, keepdims=True))).sum(axis=1)
     one = (ip.min(axis=1) == ip.max(axis=1)) | ~(vx > 0)
     a = np.where(one, control_variate(y, x[:n])[0], cov / np.where(one, 1.0, vx))
+    if alpha is not None:
+        a = np.full(n_bootstrap, float(alpha))
     xall = np.concatenate([xb, x[ie]], axis=1).mean(axis=1)
     est = yb.mean(axis=1) + a * (xall - xb.mean(axis=1))
     lo, hi = np.percentile(est, [2.5, 97.5])
