@@ -14,8 +14,17 @@ between runs whose host speeds agree.
 Other options go to ``cip-validate run`` as they are (e.g. ``--baseline
 validation/data/baseline_quick.json``: its regression line is printed too).
 
+``--against COMMIT`` times that commit of this repository side by side: a temporary
+``git worktree`` of it runs on the same interpreter and packages (its tree first on
+``PYTHONPATH``), alternated with the current tree ``--rounds`` times per profile
+(reference first) after one uncounted warm-up run of each (a fresh worktree compiles
+numba's cached kernels on its first run: ef8af27's smoke took 12.8 s then, 5.9 s
+after), and a last line per profile gives the median wall time of each and
+their ratio, current / reference (the issue's targets are ratios measured so: one run,
+one machine).
+
 Usage:  python benchmarks/bench_run.py [--profiles quick,smoke] [--seed 2011]
-        [--no-figures] [--json times.json] [RUN OPTIONS]
+        [--no-figures] [--json times.json] [--against COMMIT --rounds 2] [RUN OPTIONS]
 """
 
 from __future__ import annotations
@@ -38,16 +47,32 @@ def _children_cpu() -> float:
     return ru.ru_utime + ru.ru_stime
 
 
-def time_run(profile: str, seed: int, figures: bool, extra: list[str]) -> dict:
-    """One ``cip-validate run`` in a fresh process: wall, CPU, per-stage times, load."""
+def _entry(root: Path) -> str:
+    """The module whose ``main`` is ``cip-validate`` in the tree at ``root`` (it moved
+    from ``validation.cli`` to ``validation.cli.main`` with the layout by role)."""
+    return "validation.cli.main" if (root / "validation" / "cli" / "main.py").is_file() \
+        else "validation.cli"  # fmt: skip
+
+
+def time_run(profile: str, seed: int, figures: bool, extra: list[str],
+             root: Path | None = None) -> dict:  # fmt: skip
+    """One ``cip-validate run`` in a fresh process: wall, CPU, per-stage times, load.
+
+    ``root``: another tree of this repository to run instead (:func:`reference_tree`)."""
+    here = Path(__file__).resolve().parent.parent
+    tree = root or here
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-m", "validation.cli.main", "run", "--profile", profile,
+        main = f"import sys; from {_entry(tree)} import main; sys.exit(main())"
+        cmd = [sys.executable, "-c", main, "run", "--profile", profile,
                "--seed", str(seed), "--out", tmp, "--quiet", *extra]  # fmt: skip
         if not figures:
             cmd.append("--no-figures")
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+            [str(tree), *filter(None, [os.environ.get("PYTHONPATH")])])}  # fmt: skip
         load_before = hostspeed.load()
         c0, t0 = _children_cpu(), time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False, cwd=tree,
+                              env=env)  # fmt: skip
         wall, cpu = time.perf_counter() - t0, _children_cpu() - c0
         res_path = Path(tmp) / "results.json"
         res = json.loads(res_path.read_text()) if res_path.is_file() else {}
@@ -77,14 +102,68 @@ def report(r: dict) -> None:
         print(f"  stderr: {line}")
 
 
+def reference_tree(commit: str, where: Path) -> Path:
+    """A detached ``git worktree`` of ``commit`` at ``where`` (removed by the caller with
+    ``git worktree remove``); a one-line error naming the commit when git refuses."""
+    repo = Path(__file__).resolve().parent.parent
+    proc = subprocess.run(["git", "-C", str(repo), "worktree", "add", "--detach", "-q",
+                           str(where), commit], capture_output=True, text=True)  # fmt: skip
+    if proc.returncode:
+        sys.exit(f"bench_run.py: --against {commit}: {proc.stderr.strip().splitlines()[-1]}")
+    return where
+
+
+def side_by_side(a: argparse.Namespace, extra: list[str]) -> list[dict]:
+    """``a.rounds`` alternations of the reference commit and the current tree per profile,
+    each run reported; the last line per profile: median walls and their ratio."""
+    import statistics
+
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        ref = reference_tree(a.against, Path(tmp) / "ref")
+        try:
+            for profile in a.profiles.split(","):
+                walls: dict[str, list[float]] = {"reference": [], "current": []}
+                for root in (ref, None):  # a fresh worktree compiles numba's kernels first
+                    w = time_run(profile, a.seed, not a.no_figures, extra, root)["wall_s"]
+                    print(f"\n[warm-up, not counted: {a.against if root else 'this tree'}] "
+                          f"{profile} {w:.1f} s")  # fmt: skip
+                for _ in range(a.rounds):
+                    for label, root in (("reference", ref), ("current", None)):
+                        print(f"\n[{label}: {a.against if root else 'this tree'}] "
+                              f"{hostspeed.line()}")  # fmt: skip
+                        r = time_run(profile, a.seed, not a.no_figures, extra, root)
+                        r["tree"] = label
+                        report(r)
+                        walls[label].append(r["wall_s"])
+                        out.append(r)
+                mr, mc = (statistics.median(walls[k]) for k in ("reference", "current"))
+                print(f"\n{profile}: median wall {mc:.2f} s (this tree) / {mr:.2f} s "
+                      f"({a.against}) = {mc / mr:.3f}")  # fmt: skip
+        finally:
+            repo = Path(__file__).resolve().parent.parent
+            subprocess.run(["git", "-C", str(repo), "worktree", "remove", "--force", str(ref)],
+                           capture_output=True)  # fmt: skip
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--profiles", default="quick,smoke", help="comma-separated profiles")
     ap.add_argument("--seed", type=int, default=2011)
     ap.add_argument("--no-figures", action="store_true", help="time the runs without figures")
     ap.add_argument("--json", help="also write the measurements to this JSON file")
+    ap.add_argument("--against", help="a commit to time side by side with this tree")
+    ap.add_argument("--rounds", type=int, default=2, help="--against: alternations per profile")
     a, extra = ap.parse_known_args()
     print(f"cores: {os.cpu_count()}; python {sys.version.split()[0]}")
+    if a.against:
+        if a.rounds < 1:
+            ap.error(f"--rounds must be >= 1, got {a.rounds}")
+        out = side_by_side(a, extra)
+        if a.json:
+            Path(a.json).write_text(json.dumps(out, indent=1))
+        return
     out = []
     for profile in a.profiles.split(","):
         host = hostspeed.line()

@@ -71,3 +71,22 @@ def test_targets_refuses_an_unknown_part_in_one_line():
         capture_output=True, text=True, check=False, timeout=60,
     )  # fmt: skip
     assert out.returncode == 2 and "--skip: unknown part(s) ['smok']" in out.stderr
+
+
+def _worktrees() -> list[str]:
+    return subprocess.run(["git", "-C", str(ROOT), "worktree", "list"], capture_output=True,
+                          text=True, check=True).stdout.strip().splitlines()  # fmt: skip
+
+
+def test_bench_run_against_an_unknown_commit_is_one_line():
+    """``bench_run.py --against``: git's refusal in one line naming the commit, no tree left."""
+    before = _worktrees()
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "bench_run.py"), "--against", "no-such-ref",
+         "--profiles", "smoke"], capture_output=True, text=True, check=False, timeout=60,
+        env=SMALL_PROBE,
+    )  # fmt: skip
+    assert out.returncode == 1
+    (line,) = out.stderr.strip().splitlines()
+    assert line.startswith("bench_run.py: --against no-such-ref: ")
+    assert _worktrees() == before
