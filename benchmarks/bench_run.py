@@ -41,6 +41,9 @@ from pathlib import Path
 
 import hostspeed
 
+#: this repository's root: the tree timed by default, and where ``--against`` adds a worktree
+REPO = Path(__file__).resolve().parent.parent
+
 
 def _children_cpu() -> float:
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -59,8 +62,7 @@ def time_run(profile: str, seed: int, figures: bool, extra: list[str],
     """One ``cip-validate run`` in a fresh process: wall, CPU, per-stage times, load.
 
     ``root``: another tree of this repository to run instead (:func:`reference_tree`)."""
-    here = Path(__file__).resolve().parent.parent
-    tree = root or here
+    tree = root or REPO
     with tempfile.TemporaryDirectory() as tmp:
         main = f"import sys; from {_entry(tree)} import main; sys.exit(main())"
         cmd = [sys.executable, "-c", main, "run", "--profile", profile,
@@ -105,8 +107,7 @@ def report(r: dict) -> None:
 def reference_tree(commit: str, where: Path) -> Path:
     """A detached ``git worktree`` of ``commit`` at ``where`` (removed by the caller with
     ``git worktree remove``); a one-line error naming the commit when git refuses."""
-    repo = Path(__file__).resolve().parent.parent
-    proc = subprocess.run(["git", "-C", str(repo), "worktree", "add", "--detach", "-q",
+    proc = subprocess.run(["git", "-C", str(REPO), "worktree", "add", "--detach", "-q",
                            str(where), commit], capture_output=True, text=True)  # fmt: skip
     if proc.returncode:
         sys.exit(f"bench_run.py: --against {commit}: {proc.stderr.strip().splitlines()[-1]}")
@@ -141,8 +142,7 @@ def side_by_side(a: argparse.Namespace, extra: list[str]) -> list[dict]:
                 print(f"\n{profile}: median wall {mc:.2f} s (this tree) / {mr:.2f} s "
                       f"({a.against}) = {mc / mr:.3f}")  # fmt: skip
         finally:
-            repo = Path(__file__).resolve().parent.parent
-            subprocess.run(["git", "-C", str(repo), "worktree", "remove", "--force", str(ref)],
+            subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force", str(ref)],
                            capture_output=True)  # fmt: skip
     return out
 

@@ -129,11 +129,11 @@ def lyapunov_twin(
 
     def renormalise(block: slice) -> np.ndarray:
         norm = deviation_norm(state[block], hist[block], rates[block])
-        c = (epsilon / norm)[:, None]
-        st = state[block]
+        c = (epsilon / norm)[:, None, None]
+        st = state[block]  # a view: scaled in place, the carts' common drift dropped
         st[:, :, 0] -= st[:, :, 0].mean(axis=1, keepdims=True)
-        state[block] = st * c[:, :, None]
-        hist[block] *= c[:, :, None]
+        st *= c
+        hist[block] *= c
         return norm
 
     for block in realization_blocks(nreal, execution.threads):

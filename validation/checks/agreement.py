@@ -173,9 +173,7 @@ def lambda1_multifidelity(
     # (an unrelated control reached rho = -0.9995 at 3 pairs); with alpha given, the
     # residual's variance is unbiased with n - 1 degrees of freedom
     est = mfe.mfmc_estimate(full.per_realization, tw.per_realization, alpha=1.0)
-    # plain sampling's interval at the twin's spread over m (the engine's where the twin
-    # follows it; est.sigma_y would count an unrelated control's own spread twice)
-    plain = mfe.t975(n_plain - 1) * float(np.std(tw.per_realization, ddof=1)) / np.sqrt(n_plain)
+    plain = mfe.plain_half_width_at(tw.per_realization, n_plain)
     if not est.half_width <= plain:
         return (f"multifidelity not used: with the engine on {n} and its twin on {m} "
                 f"realisations the interval would be {est.half_width / plain:.3g} times "
@@ -716,7 +714,7 @@ def mf_equivalence(
     margin = min(_known(x), _known(np.asarray(env, dtype=float).ravel() - r)) + est.half_width
     lo, hi = est.ci95
     status = tost_status(lo, hi, margin)
-    plain = mfe.t975(n_plain - 1) * float(np.std(x, ddof=1)) / np.sqrt(n_plain)
+    plain = mfe.plain_half_width_at(x, n_plain)
     ratio = est.half_width / plain if plain > 0 else (0.0 if est.half_width == 0 else np.inf)
     rf = r[np.isfinite(r)]
     ref, ref_se = float(rf.mean()), float(rf.std(ddof=1) / np.sqrt(rf.size))

@@ -277,6 +277,15 @@ def beats_plain(rho: float, n: int, m: int, n_plain: int) -> bool:
     return predicted_half_width_ratio(rho, n, m, n_plain) <= 1.0
 
 
+def plain_half_width_at(x: np.ndarray, n_plain: int) -> float:
+    """The 95 % half-width plain sampling of ``n_plain`` costly samples would have at the
+    cheap model's spread: t_{0.975, n_plain - 1} s_x / sqrt(n_plain), s_x over all of
+    ``x``.  Where the cheap model follows the costly one, s_x is sigma_y; unlike
+    :attr:`MFEstimate.sigma_y` at alpha = 1, it does not count an unrelated control's
+    own spread twice (s^2(y - x) + s_x^2 is then 3 sigma^2)."""
+    return t975(n_plain - 1) * float(np.std(x, ddof=1)) / np.sqrt(n_plain)
+
+
 def bootstrap_interval(y: np.ndarray, x: np.ndarray, rng: np.random.Generator,
                        n_bootstrap: int = 1000, alpha: float | None = None
                        ) -> tuple[float, float]:  # fmt: skip
@@ -292,13 +301,14 @@ def bootstrap_interval(y: np.ndarray, x: np.ndarray, rng: np.random.Generator,
     ip = rng.integers(0, n, (n_bootstrap, n))
     ie = n + rng.integers(0, max(m - n, 1), (n_bootstrap, m - n))
     yb, xb = y[ip], x[ip]
-    xc = xb - xb.mean(axis=1, keepdims=True)
-    vx = (xc * xc).sum(axis=1)
-    cov = (xc * (yb - yb.mean(axis=1, keepdims=True))).sum(axis=1)
-    one = (ip.min(axis=1) == ip.max(axis=1)) | ~(vx > 0)
-    a = np.where(one, control_variate(y, x[:n])[0], cov / np.where(one, 1.0, vx))
     if alpha is not None:
         a = np.full(n_bootstrap, float(alpha))
+    else:
+        xc = xb - xb.mean(axis=1, keepdims=True)
+        vx = (xc * xc).sum(axis=1)
+        cov = (xc * (yb - yb.mean(axis=1, keepdims=True))).sum(axis=1)
+        one = (ip.min(axis=1) == ip.max(axis=1)) | ~(vx > 0)
+        a = np.where(one, control_variate(y, x[:n])[0], cov / np.where(one, 1.0, vx))
     xall = np.concatenate([xb, x[ie]], axis=1).mean(axis=1)
     est = yb.mean(axis=1) + a * (xall - xb.mean(axis=1))
     lo, hi = np.percentile(est, [2.5, 97.5])
