@@ -23,8 +23,8 @@ from cip.model import CIPParams
 from cip.runner import CIPRunner, RigidBody, RolloutBackend
 from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
-from cipcore.noise import GainNoise
-from cipcore.params import BalanceParams, ParameterError, check_count, whole_steps
+from cipcore.noise import ArrayNoise, GainNoise, StackedNoise, make_noise
+from cipcore.params import BalanceParams, ParameterError, whole_steps
 from cipcore.results import LyapunovResult, check_transient
 from cipcore.scenario import Execution, Scenario
 from cipcore.schema import check_duration
@@ -90,6 +90,8 @@ def lyapunov_full(
     epsilon: float = 1e-7,
     transient: float | None = None,
     execution: Execution = Execution(),
+    noise: GainNoise | ArrayNoise | StackedNoise | None = None,
+    betas: np.ndarray | None = None,
 ) -> LyapunovResult:
     """Largest Lyapunov exponent (1/s) of the MuJoCo CIP about upright.
 
@@ -99,27 +101,38 @@ def lyapunov_full(
     by renormalisation: small enough for the linear regime (theta ~ epsilon / L).
     ``body`` as in :func:`cip.simulate.simulate_full`; ``transient`` (s) is
     discarded at the start (default min(10 s, duration / 10)).
+
+    ``noise`` (default: the scenario's seed and realisations) and ``betas`` (R,), a gain
+    (1/s^2) per realisation instead of the scenario's, run several gains and seeds in
+    one batch (a :class:`cipcore.noise.StackedNoise`): realisation r draws its noise and
+    its initial deviation from its own stream (``noise.stream(r)``), so its exponent is
+    the one it has run alone.  The step-bound engines (a batch of worlds per step) then
+    step once for all of them, and the driver's threads share them evenly.
     """
     model, params, seed = scenario.model, scenario.params, scenario.seed
     threads, backend, mj_model = execution.threads, body.backend, body.mj_model
-    n_realizations = scenario.realizations
     nc = get_model(model).n_controllers
     duration = check_duration(scenario.duration)
     n_steps = whole_steps("duration", duration, params.dt)
     transient = check_transient(transient, duration)
     if not (0 < epsilon < 1e-3):
         raise ParameterError(f"epsilon must be in (0, 1e-3) m, got {epsilon}")
-    n_realizations = check_count("realizations", n_realizations)
     physical = body.physical or CIPParams.from_reduced(params)
-    noise = GainNoise(seed, n_realizations, nc)
+    noise = make_noise(noise, seed, scenario.realizations, nc)
+    n_realizations = noise.n_realizations
+    if betas is not None and np.size(betas) != n_realizations:
+        raise ParameterError(f"betas must give one gain per realisation ({n_realizations}), "
+                             f"got {np.size(betas)}")  # fmt: skip
     transient_steps = round(transient / params.dt)
     logsum = np.zeros(n_realizations)
     # each block's runner is built here, before the driver's threads start (a backend may
     # fork worker processes, cip.workers: never beside running threads)
-    runners = {
-        block.start: _start(model, params, physical, block, seed, epsilon, backend, mj_model)
-        for block in realization_blocks(n_realizations, threads)
-    }
+    gains = None if betas is None else np.ravel(betas)
+    runners = {}
+    for block in realization_blocks(n_realizations, threads):
+        own = None if gains is None else gains[block]
+        runners[block.start] = _start(model, params, physical, block, noise, epsilon, backend,
+                                      mj_model, own)  # fmt: skip
     d = params.delay_steps
     # accumulation starts with the first chunk that ends after the transient
     start = (transient_steps // d) * d
@@ -141,7 +154,9 @@ def lyapunov_full(
     mean, ci = mean_ci95(per)
     return LyapunovResult(
         lambda1=mean, ci95=ci, per_realization=per, duration=duration, transient=transient,
-        model=model, params={**params.as_dict(), "physical": physical.as_dict()}, seed=seed,
+        model=model, params={**params.as_dict(), "physical": physical.as_dict(),
+                             **({} if betas is None else {"betas": np.ravel(betas).tolist()})},
+        seed=seed,
     )  # fmt: skip
 
 
@@ -150,24 +165,26 @@ def _start(
     params: BalanceParams,
     physical: CIPParams,
     block: slice,
-    seed: int,
+    noise: GainNoise | ArrayNoise | StackedNoise,
     epsilon: float,
     backend: type[RolloutBackend] | None = None,
     mj_model: object = None,
+    betas: np.ndarray | None = None,
 ) -> tuple[CIPRunner, _Renormaliser]:
     """A runner for realisations ``block`` at a random deviation of norm epsilon, and
-    the renormaliser of its deviation.
+    the renormaliser of its deviation; ``betas`` the block's gains (None: the params').
 
     Angles and delay history of realisation k: :func:`cipcore.seeds.tangent_deviation`
-    (the stream ``SeedSequence(seed, spawn_key=(k, 1))``; in the coupled model both
-    angles start equal, on the rod constraint to first order).
+    of its noise stream ``noise.stream(k)`` = (seed, index) (the stream
+    ``SeedSequence(seed, spawn_key=(index, 1))``; in the coupled model both angles start
+    equal, on the rod constraint to first order).
     """
     r = CIPRunner(
         model, params, physical, block.stop - block.start, 0.0, threads=1, backend=backend,
-        mj_model=mj_model,
+        mj_model=mj_model, betas=betas,
     )  # fmt: skip
     for j, k in enumerate(range(block.start, block.stop)):
-        e0, r.e_hist[j] = tangent_deviation(seed, k, r.nc, r.d)
+        e0, r.e_hist[j] = tangent_deviation(*noise.stream(k), r.nc, r.d)
         r.state[j, r.i_th] = e0 / physical.pendulum_length
     renorm = _Renormaliser(r)
     renorm.rescale(r, epsilon / renorm.norm(r))

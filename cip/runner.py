@@ -162,6 +162,8 @@ class CIPRunner:
     state : (R, nstate) mjSTATE_FULLPHYSICS states (time, qpos, qvel).
     e_hist, edot_hist : (R, d, C) balancing errors (m) and their rates (m/s)
         at steps n - d .. n - 1, n the next step.
+    betas : (R,) each realisation's gain beta (1/s^2): ``params.beta`` unless the
+        constructor's ``betas`` gives one per realisation (several gains in one batch).
     """
 
     def __init__(
@@ -176,6 +178,7 @@ class CIPRunner:
         threads: int | None = None,
         backend: type[RolloutBackend] | None = None,
         mj_model: mujoco.MjModel | None = None,
+        betas: np.ndarray | None = None,
     ) -> None:
         self.model_name = model
         self.params = params
@@ -216,6 +219,13 @@ class CIPRunner:
         )
         self.threads = max(1, min(threads or os.cpu_count() or 1, n_realizations))
         self.n_realizations = n_realizations
+        self.betas = np.full(n_realizations, params.beta)
+        if betas is not None:
+            b = np.ravel(betas).astype(float)
+            if b.shape != (n_realizations,) or not np.all(np.isfinite(b) & (b >= 0)):
+                raise ParameterError(f"betas must be {n_realizations} finite gains >= 0 "
+                                     f"(1/s^2), got {b.tolist()}")  # fmt: skip
+            self.betas = b
         self.backend = (backend or MujocoRollout)(self.m, n_realizations, self.threads)
         data = mujoco.MjData(self.m)
         theta0 = np.arcsin(amplitude / L)
@@ -256,7 +266,8 @@ class CIPRunner:
             c = self.controller
             u = M * (c.kp * self.e_hist[:, :n] + c.kd * self.edot_hist[:, :n])
         else:
-            u = delayed_random_gain(M * p.beta, p.noise_scale, xi, self.e_hist[:, :n])
+            gain = M * self.betas[:, None, None]  # M beta per realisation (N/m)
+            u = delayed_random_gain(gain, p.noise_scale, xi, self.e_hist[:, :n])
         ctrl[:, :, self.i_u] = u
         out = np.empty((self.n_realizations, n, self.nstate))
         self.backend(self.state, np.ascontiguousarray(ctrl), out)

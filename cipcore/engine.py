@@ -131,8 +131,12 @@ class SimulateOptions(TypedDict, total=False):
 class LyapunovOptions(TypedDict, total=False):
     """The keyword options of :meth:`Engine.lyapunov` (an engine refuses others):
     threads, progress, transient (s), epsilon (m); rigid-body engines also
-    physical, mj_model and backend (as :class:`SimulateOptions`)."""
+    physical, mj_model and backend (as :class:`SimulateOptions`), and noise (a
+    :class:`cipcore.noise.StackedNoise` of several seeds) with betas (a gain in 1/s^2
+    per realisation): several gains in one batch."""
 
+    noise: Any
+    betas: Any
     threads: int | None
     progress: bool
     transient: float | None

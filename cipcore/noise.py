@@ -32,9 +32,16 @@ class _NoiseSource:
     n_realizations: int
     n_controllers: int
     position: int
+    seed: int
+    first_realization: int
 
     def fill(self, realization: int, out: np.ndarray) -> None:
         raise NotImplementedError
+
+    def stream(self, realization: int) -> tuple[int, int]:
+        """(seed, index) of realisation ``realization``'s stream: what keys its other
+        seeded draws (e.g. :func:`cipcore.seeds.tangent_deviation`)."""
+        return self.seed, self.first_realization + realization
 
     def next_chunk(self, n_steps: int, out: np.ndarray | None = None) -> np.ndarray:
         """The next ``n_steps`` draws of every realisation, shape (R, n_steps, C)."""
@@ -150,8 +157,45 @@ class ArrayNoise(_NoiseSource):
         self._pos[realization] = p + n
 
 
+class StackedNoise(_NoiseSource):
+    """Several noise sources of the same controllers served as one batch of realisations.
+
+    Realisation r of the stack is realisation r - offset of the part it falls in, with
+    that part's draws and stream key (:meth:`stream`): a run of the stack gives each
+    realisation the numbers it gets run alone.  What lets one engine call run several
+    scenarios that differ only in their seed and gain (the lambda1 check's gains of a
+    model: :func:`cip.lyapunov.lyapunov_full`'s ``betas``).
+    """
+
+    def __init__(self, parts: list[GainNoise | ArrayNoise]) -> None:
+        if not parts:
+            raise ParameterError("noise: a stack needs at least one part")
+        nc = {p.n_controllers for p in parts}
+        if len(nc) != 1:
+            raise ParameterError(f"noise: the parts' controller counts differ: {sorted(nc)}")
+        self.parts = list(parts)
+        self.n_controllers = nc.pop()
+        self.n_realizations = sum(p.n_realizations for p in parts)
+        self._where = [(p, r) for p in parts for r in range(p.n_realizations)]
+        self.position = 0
+
+    def reset(self) -> None:
+        """Rewind every part to step 0."""
+        for p in self.parts:
+            p.reset()
+        self.position = 0
+
+    def fill(self, realization: int, out: np.ndarray) -> None:
+        part, r = self._where[realization]
+        part.fill(r, out)
+
+    def stream(self, realization: int) -> tuple[int, int]:
+        part, r = self._where[realization]
+        return part.stream(r)
+
+
 def make_noise(
-    noise: GainNoise | ArrayNoise | None, seed: int, n_realizations: int, nc: int
+    noise: GainNoise | ArrayNoise | StackedNoise | None, seed: int, n_realizations: int, nc: int
 ) -> GainNoise | ArrayNoise:
     """A fresh seeded :class:`GainNoise`, or ``noise`` checked for C streams at step 0."""
     if noise is None:

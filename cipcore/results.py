@@ -7,11 +7,12 @@ realisations and its Student-t 95 % CI (:mod:`cipcore.stats`).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
 from .params import ParameterError
+from .stats import mean_ci95
 
 
 @dataclass
@@ -31,6 +32,15 @@ class LyapunovResult:
     def sem(self) -> float:
         n = len(self.per_realization)
         return float(np.std(self.per_realization, ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+
+    def part(self, realizations: slice, beta: float, seed: int) -> LyapunovResult:
+        """The result of ``realizations`` alone, run at gain ``beta`` (1/s^2) from noise
+        ``seed``: one scenario of a batch of several (``betas`` per realisation)."""
+        per = np.asarray(self.per_realization)[realizations]
+        mean, ci = mean_ci95(per)
+        params = {k: v for k, v in self.params.items() if k != "betas"}
+        return replace(self, lambda1=mean, ci95=ci, per_realization=per,
+                       params={**params, "beta": beta}, seed=seed)  # fmt: skip
 
     def as_dict(self) -> dict:
         d = asdict(self)

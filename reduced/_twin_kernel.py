@@ -50,23 +50,21 @@ def _accelerations(
     alpha, g_tip, g_cart, mu = coef[0], coef[1], coef[2], coef[3]
     rod = coef[7] > 0.5 and nc == 2
     k_rod, b_rod, a_rod, r_rod = coef[8], coef[9], coef[10], coef[11]
-    qx = np.empty(nc)
-    qe = np.empty(nc)
+    # the rod's unconstrained tip-separation acceleration a0, summed as the loop goes
+    # (no scratch arrays: this runs at every step and every RK stage)
+    a0 = 0.0
     for i in range(nc):
         e, v, w = st[i, 1], st[i, 2], st[i, 3]
         tip_drag = g_tip * mu * (v + w)
-        qx[i] = u[i] - g_cart * v - tip_drag
-        qe[i] = mu * alpha * e - tip_drag
-        ax[i] = mstep[0, 0] * qx[i] + mstep[0, 1] * qe[i]
-        ae[i] = mstep[1, 0] * qx[i] + mstep[1, 1] * qe[i]
+        qx = u[i] - g_cart * v - tip_drag
+        qe = mu * alpha * e - tip_drag
+        ax[i] = mstep[0, 0] * qx + mstep[0, 1] * qe
+        ae[i] = mstep[1, 0] * qx + mstep[1, 1] * qe
+        sgn = 1.0 if i == 0 else -1.0
+        a0 += sgn * ((minv[0, 0] * qx + minv[0, 1] * qe) + (minv[1, 0] * qx + minv[1, 1] * qe))
     if rod:
         # soft equality on the tip separation: J = (+1, +1, -1, -1) in (x1, e1, x2, e2)
         sep, sep_rate = tip_separation(st)
-        a0 = 0.0
-        for i in range(2):
-            sgn = 1.0 if i == 0 else -1.0
-            a0 += sgn * ((minv[0, 0] * qx[i] + minv[0, 1] * qe[i])
-                         + (minv[1, 0] * qx[i] + minv[1, 1] * qe[i]))  # fmt: skip
         aref = -b_rod * sep_rate - k_rod * sep
         f = (aref - a0) / (a_rod + r_rod)
         apply_rod_force(mstep, f, ax, ae)
@@ -169,3 +167,87 @@ def advance_twin(
             p = ring_next(p, d)
         p_out = p
     return p_out
+
+
+@njit(cache=True, nogil=True)
+def _deviation_norm(st: np.ndarray, hist: np.ndarray, rates: np.ndarray) -> float:
+    """The Benettin norm (m) of one realisation: :func:`reduced.twin_lyapunov.deviation_norm`
+    of ``st`` (C, 4), ``hist`` and ``rates`` (C, d)."""
+    nc, d = hist.shape
+    mean = 0.0
+    for i in range(nc):
+        mean += st[i, 0]
+    mean /= nc
+    s = 0.0
+    for i in range(nc):
+        s += (st[i, 0] - mean) ** 2
+    for i in range(nc):
+        for c in range(1, 4):
+            s += st[i, c] ** 2
+    for i in range(nc):
+        for j in range(d):
+            s += hist[i, j] ** 2 + rates[i, j] ** 2
+    return np.sqrt(s)
+
+
+@njit(cache=True, nogil=True)
+def benettin_twin(
+    xi: np.ndarray,
+    state: np.ndarray,
+    hist: np.ndarray,
+    rates: np.ndarray,
+    coef: np.ndarray,
+    minv: np.ndarray,
+    mstep: np.ndarray,
+    scheme: int,
+    n0: int,
+    transient_steps: int,
+    epsilon: float,
+    logsum: np.ndarray,
+) -> int:
+    """Benettin's method on the twin over ``xi.shape[1]`` steps from global step ``n0``
+    (a multiple of d).
+
+    Each realisation advances by :func:`advance_twin` a delay (d steps) at a time, the
+    last stretch of the run maybe shorter (each stretch starts at ring slot 0, as step
+    n0 + a, a multiple of d, does); ``rates`` (R, C, d) then
+    holds the balancing error's rates e' (m/s) at the last d steps in time order (the
+    recorded tip velocity less the cart's, as the engine's buffer holds them).  After
+    each stretch the deviation is measured (:func:`_deviation_norm`), log(norm /
+    ``epsilon``) is added to ``logsum`` (R,) once the run is past ``transient_steps``,
+    and the deviation (state, ``hist``, ``rates``) is scaled back to ``epsilon`` with the
+    carts' common drift dropped.  Returns the global step after which a realisation's
+    norm was first not finite, else -1 (the state is then left as it was).
+    """
+    nb, n, nc = xi.shape
+    d = hist.shape[2]
+    rec = np.empty((1, d, nc, 4))
+    for r in range(nb):
+        for a in range(0, n, d):
+            m = min(d, n - a)
+            advance_twin(xi[r : r + 1, a : a + m], state[r : r + 1], hist[r : r + 1],
+                         0, coef, minv, mstep, scheme, 0, 1, rec)  # fmt: skip
+            for i in range(nc):
+                for j in range(d - m):
+                    rates[r, i, j] = rates[r, i, j + m]
+                for j in range(m):
+                    rates[r, i, d - m + j] = rec[0, j, i, 1] - rec[0, j, i, 3]
+            done = n0 + a + m
+            norm = _deviation_norm(state[r], hist[r], rates[r])
+            if not np.isfinite(norm):
+                return done
+            if done > transient_steps:
+                logsum[r] += np.log(norm / epsilon)
+            c = epsilon / norm
+            mean = 0.0
+            for i in range(nc):
+                mean += state[r, i, 0]
+            mean /= nc
+            for i in range(nc):
+                state[r, i, 0] -= mean
+                for q in range(4):
+                    state[r, i, q] *= c
+                for j in range(d):
+                    hist[r, i, j] *= c
+                    rates[r, i, j] *= c
+    return -1

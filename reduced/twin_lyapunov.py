@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cipcore.driver import realization_blocks, run_blocks
+from cipcore.driver import CHUNK_STEPS, run_blocks
 from cipcore.noise import GainNoise
 from cipcore.params import ParameterError, whole_steps
 from cipcore.results import LyapunovResult, check_transient
@@ -38,7 +38,7 @@ from cipcore.schema import check_duration
 from cipcore.seeds import tangent_deviation
 from cipcore.stats import mean_ci95
 
-from ._twin_kernel import advance_twin
+from ._twin_kernel import benettin_twin
 from .simulate import n_controllers
 from .twin import TWIN_SCHEMES, TwinParams, twin_coefficients
 
@@ -57,6 +57,14 @@ def deviation_norm(state: np.ndarray, hist: np.ndarray, rate_hist: np.ndarray) -
     s += (state[:, :, 1:] ** 2).sum(axis=(1, 2))
     s += (hist**2).sum(axis=(1, 2)) + (rate_hist**2).sum(axis=(1, 2))
     return np.sqrt(s)
+
+
+def rescale(state: np.ndarray, hist: np.ndarray, c: np.ndarray) -> None:
+    """Scale each realisation's deviation, ``state`` (R, C, 4) and ``hist`` (R, C, d), by
+    c (R,) in place, the carts' common drift dropped (it is neutral)."""
+    state[:, :, 0] -= state[:, :, 0].mean(axis=1, keepdims=True)
+    state *= c[:, None, None]
+    hist *= c[:, None, None]
 
 
 def initial_deviation(seed: int, n_realizations: int, n_controllers: int,
@@ -126,36 +134,18 @@ def lyapunov_twin(
     minv, mstep, scheme = twin.inverse_mass(), twin.step_matrix(), TWIN_SCHEMES[twin.integrator]
     logsum = np.zeros(nreal)
     start = (transient_steps // d) * d
-
-    def renormalise(block: slice) -> np.ndarray:
-        norm = deviation_norm(state[block], hist[block], rates[block])
-        c = (epsilon / norm)[:, None, None]
-        st = state[block]  # a view: scaled in place, the carts' common drift dropped
-        st[:, :, 0] -= st[:, :, 0].mean(axis=1, keepdims=True)
-        st *= c
-        hist[block] *= c
-        return norm
-
-    for block in realization_blocks(nreal, execution.threads):
-        renormalise(block)
+    rescale(state, hist, epsilon / deviation_norm(state, hist, rates))
 
     def work(block: slice, xi: np.ndarray, step: int) -> None:
-        n = xi.shape[1]
-        rec = np.empty((xi.shape[0], n, nc, 4))
-        advance_twin(xi, state[block], hist[block], step % d, coef, minv, mstep, scheme, step,
-                     1, rec)  # fmt: skip
-        # the rates at steps step .. step + n - 1 (the states before each step):
-        # tip velocity minus cart velocity
-        rates[block] = np.concatenate([rates[block][:, :, n:],
-                                       (rec[:, :, :, 1] - rec[:, :, :, 3]).transpose(0, 2, 1)],
-                                      axis=2)  # fmt: skip
-        norm = renormalise(block)
-        if not np.all(np.isfinite(norm)):
-            raise FloatingPointError(f"non-finite twin state at t = {(step + n) * params.dt:.4g} s")
-        if step + n > transient_steps:
-            logsum[block] += np.log(norm / epsilon)
+        bad = benettin_twin(xi, state[block], hist[block], rates[block], coef, minv, mstep,
+                            scheme, step, transient_steps, epsilon, logsum[block])  # fmt: skip
+        if bad >= 0:
+            raise FloatingPointError(f"non-finite twin state at t = {bad * params.dt:.4g} s")
 
-    run_blocks(noise, n_steps, work, threads=execution.threads, chunk_steps=d)
+    # chunks of whole delays (the kernel renormalises every d steps inside a chunk, and
+    # at the run's end)
+    chunk = d * max(1, CHUNK_STEPS // d)
+    run_blocks(noise, n_steps, work, threads=execution.threads, chunk_steps=chunk)
     per = logsum / ((n_steps - start) * params.dt)
     mean, ci = mean_ci95(per)
     return LyapunovResult(

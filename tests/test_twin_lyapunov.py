@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from cip.mjcf_params import read_mapping
+from cipcore.noise import GainNoise, StackedNoise
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.registry import get_engine
 from cipcore.scenario import Execution, Scenario
@@ -121,3 +122,61 @@ def test_engine_realisations_out_of_range_is_one_line() -> None:
 def test_quick_profile_runs_lambda1_by_multifidelity() -> None:
     assert PROFILES["quick"].mf_engine_realizations == 3
     assert PROFILES["paper"].mf_engine_realizations == 0 == PROFILES["smoke"].mf_engine_realizations
+
+
+# ------------------------------------------------------------------ several gains, one batch
+def test_gains_in_one_batch_are_each_gain_alone() -> None:
+    """Two gains, two seeds, one engine call (a stack of their noises, a gain per
+    realisation) on two threads, so that a block holds realisations of both gains:
+    every draw and every exponent is the one its gain's run alone gives, bit for bit."""
+    _, body = _twin("coupled")
+    runs = [(20.5, 11), (22.0, 12)]
+    noise = StackedNoise([GainNoise(seed, 2, 2) for _, seed in runs])
+    assert [noise.stream(r) for r in range(4)] == [(11, 0), (11, 1), (12, 0), (12, 1)]
+    np.testing.assert_array_equal(
+        noise.next_chunk(50),
+        np.concatenate([GainNoise(seed, 2, 2).next_chunk(50) for _, seed in runs]),
+    )
+    noise.reset()
+    engine = get_engine("mujoco")
+    batch = engine.lyapunov("coupled", BalanceParams(beta=20.5), 3.0, 4, 11, threads=2,
+                            noise=noise, betas=[20.5, 20.5, 22.0, 22.0], **body)  # fmt: skip
+    for g, (beta, seed) in enumerate(runs):
+        alone = engine.lyapunov("coupled", BalanceParams(beta=beta), 3.0, 2, seed, threads=1,
+                                **body)  # fmt: skip
+        part = batch.part(slice(2 * g, 2 * g + 2), beta, seed)
+        np.testing.assert_array_equal(part.per_realization, alone.per_realization)
+        assert part.lambda1 == alone.lambda1 and part.params["beta"] == beta
+        assert part.seed == seed and "betas" not in part.params
+
+
+@pytest.mark.parametrize(
+    "betas, match",
+    [([21.0] * 3, r"betas must give one gain per realisation \(4\), got 3"),
+     ([21.0, -1.0, 21.0, 21.0], "finite gains >= 0")],
+)  # fmt: skip
+def test_betas_that_do_not_fit_are_one_line(betas: list, match: str) -> None:
+    _, body = _twin("single")
+    with pytest.raises(ParameterError, match=match):
+        get_engine("mujoco").lyapunov("single", BalanceParams(beta=21.0), 1.0, 4, 1,
+                                      threads=1, betas=betas, **body)  # fmt: skip
+
+
+def test_a_duration_of_part_of_a_delay_pairs_too() -> None:
+    """The last chunk shorter than tau is renormalised at its end by both estimators."""
+    tw, body = _twin("single")
+    scn = Scenario("single", BalanceParams(beta=21.0), 6.05, 2, 8)
+    twin = lyapunov_twin(scn, tw, execution=Execution(threads=1))
+    eng = get_engine("mujoco").lyapunov("single", scn.params, 6.05, 2, 8, threads=1, **body)
+    assert np.abs(twin.per_realization - eng.per_realization).max() < 1e-13
+
+
+def test_two_gains_of_a_model_each_get_their_check() -> None:
+    checks, data = lyapunov_checks(_profile(lyapunov_gains={"coupled": (20.5, 21.5)}), 2)
+    assert [c.name for c in checks] == ["agreement.lambda1.coupled.beta=20.5",
+                                        "agreement.lambda1.coupled.beta=21.5"]  # fmt: skip
+    assert all(c.status == "pass" for c in checks)
+    assert all("the engine ran the 2 gains' realisations in one batch" in c.details
+               for c in checks)  # fmt: skip
+    seeds = [row["full"]["seed"] for row in data["lyapunov"]]
+    assert seeds == [row["reduced"]["seed"] for row in data["lyapunov"]] and len(set(seeds)) == 2

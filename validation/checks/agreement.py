@@ -20,6 +20,7 @@ import numpy as np
 from cip.model import small_angle_limit
 from cip.simulate import DivergenceWarning
 from cipcore.models import MODEL_NAMES, get_model
+from cipcore.noise import GainNoise, StackedNoise
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
 from cipcore.scenario import EngineTarget, Execution, Recording, Scenario
@@ -87,29 +88,29 @@ def lyapunov_checks(
         mapping = read_mapping(m)
         body = {"physical": mapping.physical(), "mj_model": m, "epsilon": epsilon,
                 "threads": threads}  # fmt: skip
-        for beta in gains:
-            p = BalanceParams(beta=beta)
-            seed = profile.seed_for("lyapunov", model, beta)
-            scn = Scenario(model, p, profile.lyapunov_duration, profile.lyapunov_realizations,
-                           seed)  # fmt: skip
-            fallback = ""
-            if profile.mf_engine_realizations:
-                got = lambda1_multifidelity(scn, t.engine, mapping, profile, body, note)
-                if not isinstance(got, str):
-                    checks.append(got[0])
-                    rows.append(got[1])
-                    continue
-                fallback = f"; {got}"
+        scenarios = [Scenario(model, BalanceParams(beta=beta), profile.lyapunov_duration,
+                              profile.lyapunov_realizations,
+                              profile.seed_for("lyapunov", model, beta))
+                     for beta in gains]  # fmt: skip
+        mf = (lambda1_multifidelity(scenarios, t.engine, mapping, profile, body, note)
+              if profile.mf_engine_realizations else [""] * len(scenarios))  # fmt: skip
+        for scn, got in zip(scenarios, mf, strict=True):
+            if not isinstance(got, str):
+                checks.append(got[0])
+                rows.append(got[1])
+                continue
+            fallback = f"; {got}" if got else ""
+            p, seed = scn.params, scn.seed
             red = lyapunov(scn, execution=Execution(threads=threads))
             full = rigid_engine(t.engine).lyapunov(model, p, scn.duration, scn.realizations,
                                                    seed, **body)  # fmt: skip
             rows.append(
-                {"model": model, "beta": beta, "full": full.as_dict(), "reduced": red.as_dict()}
+                {"model": model, "beta": p.beta, "full": full.as_dict(), "reduced": red.as_dict()}
             )
             details = (f"{profile.lyapunov_realizations} realisations x "
                        f"{profile.lyapunov_duration:g} s, seed {seed}, same noise in both "
                        f"engines, Benettin deviation {epsilon:g} m{note}{fallback}")  # fmt: skip
-            checks.append(lambda1_check(model, beta, full.lambda1, full.ci95, full.sem, red,
+            checks.append(lambda1_check(model, p.beta, full.lambda1, full.ci95, full.sem, red,
                                         details))  # fmt: skip
     return checks, {"lyapunov": rows}
 
@@ -131,21 +132,25 @@ def lambda1_check(model: str, beta: float, value: float, ci95, se: float, red,
 
 
 def lambda1_multifidelity(
-    scenario: Scenario, engine: str, mapping, profile: Profile, body: dict, note: str
-) -> tuple[Check, dict] | str:
-    """One gain's lambda1 check with the engine on ``profile.mf_engine_realizations``.
+    scenarios: list[Scenario], engine: str, mapping, profile: Profile, body: dict, note: str
+) -> list[tuple[Check, dict] | str]:
+    """Each gain's lambda1 check of one model with the engine on
+    ``profile.mf_engine_realizations``.
 
     The engine's per-realisation exponents y (n of them) and its twin's x (m =
     max(mf_twin_realizations, lyapunov_realizations), the first n paired: same noise,
     same initial deviation, same norm) give the two-model MFMC estimate of the
     engine's lambda1 with alpha = 1, mean_n(y - x) + mean_m(x)
     (:func:`validation.checks.multifidelity.mfmc_estimate`); the
-    reduced model runs the m realisations.  ``scenario`` holds the plain allocation
-    (lyapunov_realizations), ``mapping`` the model file's
-    (:func:`cip.mjcf_params.read_mapping`), ``body`` the engine's keywords.  Returns
-    why, a line for the plain check's details, where the estimate's interval is wider
-    than plain sampling's would be at the same spread (the twin does not follow the
-    engine); else (the check, the stage's row).
+    reduced model runs the m realisations.  ``scenarios`` hold the model's gains in the
+    plain allocation (lyapunov_realizations each, their own seeds); the engine runs the n
+    realisations of every gain in one call (a :class:`cipcore.noise.StackedNoise` with a
+    gain per realisation: each realisation's exponent is the one it has alone), so a
+    batched engine steps once for all gains and the threads share G x n realisations.
+    ``mapping`` is the model file's (:func:`cip.mjcf_params.read_mapping`), ``body`` the
+    engine's keywords.  Returns per gain either why, a line for the plain check's details,
+    where the estimate's interval is wider than plain sampling's would be at the same
+    spread (the twin does not follow the engine), or (the check, the stage's row).
     """
     import time
 
@@ -153,45 +158,58 @@ def lambda1_multifidelity(
     from reduced.twin_lyapunov import lyapunov_twin
     from validation.checks import multifidelity as mfe
 
-    n_plain = scenario.realizations
+    first = scenarios[0]
+    model, duration, n_plain = first.model, first.duration, first.realizations
     n, m = profile.mf_engine_realizations, max(profile.mf_twin_realizations, n_plain)
     if not mfe.MIN_PAIRED <= n < n_plain:
         raise ParameterError(f"mf_engine_realizations must be 0 or in [{mfe.MIN_PAIRED}, "
                              f"lyapunov_realizations = {n_plain}), got {n}")  # fmt: skip
-    model, p, seed, duration = scenario.model, scenario.params, scenario.seed, scenario.duration
     execution = Execution(threads=body["threads"])
     twin = TwinParams(**rigid_engine(engine).twin_terms(mapping))
+    nc = get_model(model).n_controllers
+    noise = StackedNoise([GainNoise(s.seed, n, nc) for s in scenarios])
+    betas = np.repeat([s.params.beta for s in scenarios], n)
     t0 = time.perf_counter()
-    full = rigid_engine(engine).lyapunov(model, p, duration, n, seed, **body)
-    t1 = time.perf_counter()
-    cheap = replace(scenario, realizations=m)
-    tw = lyapunov_twin(cheap, twin, epsilon=body["epsilon"], execution=execution)
-    red = lyapunov(cheap, execution=execution)
-    w = (t1 - t0) / n / max((time.perf_counter() - t1) / m, 1e-9)
-    # alpha fixed at 1 (engine - twin over n, plus the twin over m): the twin models the
-    # engine itself, alpha* = 1 where it follows it, and 3 pairs cannot estimate alpha
-    # (an unrelated control reached rho = -0.9995 at 3 pairs); with alpha given, the
-    # residual's variance is unbiased with n - 1 degrees of freedom
-    est = mfe.mfmc_estimate(full.per_realization, tw.per_realization, alpha=1.0)
-    plain = mfe.plain_half_width_at(tw.per_realization, n_plain)
-    if not est.half_width <= plain:
-        return (f"multifidelity not used: with the engine on {n} and its twin on {m} "
-                f"realisations the interval would be {est.half_width / plain:.3g} times "
-                f"plain sampling's (rho {est.rho:.6g}), so the engine ran {n_plain}")  # fmt: skip
-    details = (
-        f"multifidelity: engine {n} x {duration:g} s, its {twin.integrator} twin and the "
-        f"reduced model {m} x {duration:g} s (same noise, nested; plain sampling: {n_plain} "
-        f"x {duration:g} s), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, "
-        f"1 - rho {1 - est.rho:.2g}, half-width {est.half_width / plain:.3g} x plain sampling's, "
-        f"cost ratio engine : twin + reduced w = {w:.3g} (measured)"
-    )
-    mf = {"multifidelity": est.as_dict(), "n": n, "n_twin": m,
-          "twin": {"value": tw.lambda1, "ci95": list(tw.ci95), "se": tw.sem}}  # fmt: skip
-    check = lambda1_check(model, p.beta, est.mean, est.ci95, est.se, red, details, **mf)
-    engine_row = {**full.as_dict(), "lambda1": est.mean, "ci95": list(est.ci95),
-                  "multifidelity": est.as_dict()}  # fmt: skip
-    return check, {"model": model, "beta": p.beta, "full": engine_row,
-                   "reduced": red.as_dict(), "twin": tw.as_dict()}  # fmt: skip
+    batch = rigid_engine(engine).lyapunov(model, first.params, duration, len(betas), first.seed,
+                                          noise=noise, betas=betas, **body)  # fmt: skip
+    engine_s = (time.perf_counter() - t0) / len(betas)  # per engine realisation
+    out: list[tuple[Check, dict] | str] = []
+    for g, scenario in enumerate(scenarios):
+        p, seed = scenario.params, scenario.seed
+        full = batch.part(slice(g * n, (g + 1) * n), p.beta, seed)
+        t1 = time.perf_counter()
+        cheap = replace(scenario, realizations=m)
+        tw = lyapunov_twin(cheap, twin, epsilon=body["epsilon"], execution=execution)
+        red = lyapunov(cheap, execution=execution)
+        w = engine_s / max((time.perf_counter() - t1) / m, 1e-9)
+        # alpha fixed at 1 (engine - twin over n, plus the twin over m): the twin models
+        # the engine itself, alpha* = 1 where it follows it, and 3 pairs cannot estimate
+        # alpha (an unrelated control reached rho = -0.9995 at 3 pairs); with alpha given,
+        # the residual's variance is unbiased with n - 1 degrees of freedom
+        est = mfe.mfmc_estimate(full.per_realization, tw.per_realization, alpha=1.0)
+        plain = mfe.plain_half_width_at(tw.per_realization, n_plain)
+        if not est.half_width <= plain:
+            out.append(f"multifidelity not used: with the engine on {n} and its twin on {m} "
+                       f"realisations the interval would be {est.half_width / plain:.3g} times "
+                       f"plain sampling's (rho {est.rho:.6g}), so the engine ran "
+                       f"{n_plain}")  # fmt: skip
+            continue
+        details = (
+            f"multifidelity: engine {n} x {duration:g} s, its {twin.integrator} twin and the "
+            f"reduced model {m} x {duration:g} s (same noise, nested; plain sampling: {n_plain} "
+            f"x {duration:g} s; the engine ran the {len(scenarios)} gains' realisations in one "
+            f"batch), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, 1 - rho "
+            f"{1 - est.rho:.2g}, half-width {est.half_width / plain:.3g} x plain sampling's, "
+            f"cost ratio engine : twin + reduced w = {w:.3g} (measured)"
+        )
+        mf = {"multifidelity": est.as_dict(), "n": n, "n_twin": m,
+              "twin": {"value": tw.lambda1, "ci95": list(tw.ci95), "se": tw.sem}}  # fmt: skip
+        check = lambda1_check(model, p.beta, est.mean, est.ci95, est.se, red, details, **mf)
+        engine_row = {**full.as_dict(), "lambda1": est.mean, "ci95": list(est.ci95),
+                      "multifidelity": est.as_dict()}  # fmt: skip
+        out.append((check, {"model": model, "beta": p.beta, "full": engine_row,
+                            "reduced": red.as_dict(), "twin": tw.as_dict()}))  # fmt: skip
+    return out
 
 
 @dataclass
