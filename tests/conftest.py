@@ -7,6 +7,18 @@ import re
 
 import pytest
 
+from cipcore.blas import one_blas_thread
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _one_blas_thread():
+    """Every worker's BLAS on one thread, as the command line runs (:mod:`cipcore.blas`):
+    the libraries loaded, and through the environment those loaded later and those of
+    child processes."""
+    with one_blas_thread():
+        yield
+
+
 #: Work units of pytest-xdist (``-n auto``, pyproject's addopts) that hold more than one test:
 #: one worker runs a group's tests one after another.  "realtime": the experiment's 50 Hz
 #: tests, which must not run beside each other; the others share a session or module

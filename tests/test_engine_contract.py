@@ -109,7 +109,12 @@ def test_engines_command_lists_every_engine_with_verdicts(tmp_path, capsys) -> N
     assert m["throughput"]["ratio_to_mujoco"] == 1.0
     assert 0 < m["trajectory_distance"]["coupled"] < 1e-2
     assert rows["reduced"]["trajectory_distance"]["coupled"] == 0.0
+    # each stage's wall time, summing to no more than the engine's
+    stages = m["stage_seconds"]
+    assert list(stages) == ["throughput", "lambda1", "time series", "amplitude scan"]
+    assert sum(stages.values()) <= m["seconds"] + 0.2
     cross, reproduced = (tmp_path / "report.md").read_text().split("## What each engine reproduced")
+    assert "Wall time by stage: throughput " in reproduced
     assert cross.count("| mujoco |") == 1 and reproduced.count("| mujoco |") == 1
     assert_tables_well_formed((tmp_path / "report.md").read_text())
 

@@ -125,12 +125,21 @@ def validate_engine(
     caps = engine.capabilities
     row: dict[str, Any] = {"engine": name, "capabilities": caps.as_dict()}
     t0 = time.perf_counter()
-    row["throughput"] = _throughput(engine, prof, prof.seed, threads)
+    stages: dict[str, float] = {}  # wall seconds per stage, in the report
+
+    def timed(stage: str, fn, *args, **kwargs):
+        t = time.perf_counter()
+        out = fn(*args, **kwargs)
+        stages[stage] = round(time.perf_counter() - t, 1)
+        return out
+
+    row["stage_seconds"] = stages
+    row["throughput"] = timed("throughput", _throughput, engine, prof, prof.seed, threads)
     if caps.rigid_body:
         target = {"engine": name, "integrator": integrator}
-        checks = agreement.lyapunov_checks(prof, threads, **target)[0]
-        checks += agreement.series_checks(prof, threads, **target)[0]
-        checks += agreement.amplitude_scan(prof, threads, **target)[0]
+        checks = timed("lambda1", agreement.lyapunov_checks, prof, threads, **target)[0]
+        checks += timed("time series", agreement.series_checks, prof, threads, **target)[0]
+        checks += timed("amplitude scan", agreement.amplitude_scan, prof, threads, **target)[0]
         row.update(twin_tolerance={m: engine.twin_tolerance_for(m) for m in MODEL_NAMES},
                    rod_tolerance=engine.rod_tolerance,
                    integrator=integrator)  # fmt: skip
@@ -156,7 +165,8 @@ def validate_engine(
         if selftest:
             from validation.faults.selftest import run_selftest
 
-            clean, faults = run_selftest(1, 2, engine=name, integrator=integrator)
+            clean, faults = timed("selftest", run_selftest, 1, 2, engine=name,
+                                  integrator=integrator)  # fmt: skip
             ran = [f for f in faults if f["flagged"] is not None]
             row["selftest"] = {"clean_failures": clean, "flagged": sum(f["flagged"] for f in ran),
                                "applicable": len(ran), "faults": faults}  # fmt: skip
@@ -361,6 +371,9 @@ def markdown(results: dict[str, Any]) -> str:
         lines.append(f"First call (compilation included) {tp['first_call_s']:.2f} s; timed call "
                      f"{tp['wall_s']:.2f} s for {tp['realizations']} realisations; all checks "
                      f"{r['seconds']:.0f} s.")  # fmt: skip
+        if r.get("stage_seconds"):
+            lines.append("Wall time by stage: " + ", ".join(
+                f"{k} {v:.0f} s" for k, v in r["stage_seconds"].items()) + ".")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

@@ -38,6 +38,7 @@ without interruption: every stage has its own seeds).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -51,10 +52,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from cipcore.atomic import WriteError, write_bytes
+from cipcore.blas import one_blas_thread
 from cipcore.params import BalanceParams, ParameterError
 from cipcore.scenario import EngineTarget
 from validation.checks import agreement
@@ -329,13 +330,10 @@ def run_validation(
     done: list[str] = []
     reused: list[str] = []
     state: dict[str, Any] = {}
-    # BLAS on one thread: the stages spread their realisations over threads themselves
-    # (numba, MuJoCo's rollout), and BLAS threads on the small matrices here only spin
-    # (Welch's linear detrending took 15x the CPU time with two of them on a loaded machine);
-    # scipy ships its own BLAS: loaded first, so that the limit covers it
-    import scipy.linalg  # noqa: F401
-
-    blas = threadpool_limits(limits=1, user_api="blas")
+    # BLAS on one thread (cipcore.blas): the stages spread their realisations over threads
+    # themselves, and BLAS threads on the small matrices here only spin
+    blas = contextlib.ExitStack()
+    blas.enter_context(one_blas_thread())
     # the report's clips need the profile alone: rendered by child processes beside the
     # stages (a resumed run starts them in the figures stage, if that is recomputed)
     rendering = start_clips(out_dir, profile) if figures and not resume else None
@@ -445,7 +443,7 @@ def run_validation(
         bar.close()  # an error message then starts on its own line
         raise
     finally:
-        blas.restore_original_limits()
+        blas.close()
         stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
         stop_paper_figures(drawing or worker)
     bar.close()

@@ -251,10 +251,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # --help, --version, or a usage error already printed
         return exc.code if isinstance(exc.code, int) else EXIT_USAGE
     args.argv = argv  # a command that must run in a fresh process (render) re-runs these
+    from cipcore.blas import one_blas_thread
     from cipcore.params import EngineError, ParameterError
 
     try:
-        return int(args.func(args) or 0)
+        with one_blas_thread():  # every command's BLAS on one thread (cipcore.blas)
+            return int(args.func(args) or 0)
     except ParameterError as exc:
         print(f"{PROG}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_USAGE
