@@ -1,0 +1,41 @@
+"""BLAS on one thread for every command (:mod:`cipcore.blas`)."""
+
+from __future__ import annotations
+
+import os
+
+from threadpoolctl import threadpool_info, threadpool_limits
+
+from cipcore.blas import BLAS_THREAD_VARIABLES, one_blas_thread
+
+
+def _blas_threads() -> set[int]:
+    return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+
+def test_the_loaded_libraries_run_one_thread_inside_and_theirs_after() -> None:
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert _blas_threads() == {2}
+        with one_blas_thread():
+            assert _blas_threads() == {1}
+            assert all(os.environ[v] for v in BLAS_THREAD_VARIABLES)
+        assert _blas_threads() == {2}
+
+
+def test_a_command_runs_inside_it(monkeypatch, capsys) -> None:
+    """``cip-validate stability`` computes characteristic roots (scipy's eig): its BLAS
+    had one thread while it ran."""
+    import reduced.stability as stability
+    from validation.cli.main import main
+
+    seen: list[set[int]] = []
+    real = stability.characteristic_roots
+
+    def recorded(*args, **kwargs):
+        seen.append(_blas_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(stability, "characteristic_roots", recorded)
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert main(["stability", "--model", "single", "--beta", "21"]) == 0
+    assert seen and all(s == {1} for s in seen)
