@@ -35,7 +35,7 @@ def one_blas_thread() -> Iterator[None]:
     if "numpy" not in sys.modules:  # nothing loaded yet: the variables cover it
         yield
         return
-    import scipy.linalg  # noqa: F401  (scipy ships its own BLAS: loaded, so limited too)
+    # the loaded libraries; one loaded later (scipy ships its own) reads the variables
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):

@@ -39,3 +39,20 @@ def test_a_command_runs_inside_it(monkeypatch, capsys) -> None:
     with threadpool_limits(limits=2, user_api="blas"):
         assert main(["stability", "--model", "single", "--beta", "21"]) == 0
     assert seen and all(s == {1} for s in seen)
+
+
+def test_a_blas_loaded_later_reads_the_variables() -> None:
+    """A fresh process that loads numpy, enters the limit, then loads scipy's own BLAS:
+    both on one thread."""
+    import subprocess
+    import sys
+
+    code = ("import numpy\nfrom cipcore.blas import one_blas_thread\n"
+            "from threadpoolctl import threadpool_info\n"
+            "with one_blas_thread():\n    import scipy.linalg\n"
+            "    print(sorted({i['num_threads'] for i in threadpool_info()"
+            " if i['user_api'] == 'blas'}))\n")  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True)  # fmt: skip
+    assert out.stdout.strip() == "[1]"
