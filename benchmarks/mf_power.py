@@ -160,9 +160,11 @@ def print_table(base, a, rows: dict[str, list[dict]]) -> list[dict]:
     stage = getattr(a, "stage", "series")
     n, duration = ((base.lyapunov_realizations, base.lyapunov_duration) if stage == "lambda1"
                    else (base.series_realizations, base.series_duration))  # fmt: skip
+    short = (base.mf_engine_duration or duration) if stage == "lambda1" else duration
     print(f"\nprofile {a.profile}, stage {stage}, engine {a.engine}, {a.seeds} seeds from "
           f"{a.first_seed}; plain {n} x {duration:g} s per check, multifidelity engine "
-          f"{a.mf_engine} + twin and reduced {a.mf_twin}")  # fmt: skip
+          f"{a.mf_engine} x {short:g} s + twin and reduced {a.mf_twin} x "
+          f"{duration:g} s")  # fmt: skip
     print(f"{'check':38s} {'hw plain':>10s} {'hw mf':>10s} {'mf/plain':>8s} {'median':>7s} "
           f"{'wider':>5s} {'fail p/mf':>9s} {'inc p/mf':>8s}")  # fmt: skip
     for r in table:

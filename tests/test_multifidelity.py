@@ -246,3 +246,29 @@ def test_a_control_fitted_to_three_pairs_is_not_trusted():
         fitted.v_paired < 1e-20
         and fitted.half_width < v["difference_ci95"][1] - v["difference_mean"]
     )
+
+
+@pytest.mark.parametrize("k", [0.0, 0.3])
+def test_pairs_over_another_duration_keep_their_coverage(k):
+    """x_paired: the engine's pairs ran shorter (the lambda1 check's engine duration). The
+    control over the whole duration x_i, its pairs' own values x_i + b_i, the engine's
+    y_i = x_i + b_i + c + e_i with e_i correlated with x_i by ``k``: mean_n(y - x_paired) +
+    xbar_m is unbiased for mu_x + c and the interval (the covariance bounded) covers it."""
+    rng = np.random.default_rng(11)
+    n, m, c, mu_x = 3, 16, 0.01, -0.002
+    hits, means = [], []
+    for _ in range(3000):
+        x = mu_x + 0.014 * rng.standard_normal(m)
+        xp = x[:n] + 0.02 * rng.standard_normal(n)
+        y = xp + c + k * (x[:n] - mu_x) + 0.002 * rng.standard_normal(n)
+        est = mf.mfmc_estimate(y, x, alpha=1.0, x_paired=xp)
+        assert est.mean == pytest.approx((y - xp).mean() + x.mean(), abs=1e-15)
+        hits.append(est.ci95[0] <= mu_x + c <= est.ci95[1])
+        means.append(est.mean)
+    assert abs(np.mean(means) - (mu_x + c)) < 4 * np.std(means) / np.sqrt(len(means))
+    assert np.mean(hits) >= 0.93  # 0.90 at k = 0.3 without the covariance bound
+
+
+def test_pairs_of_the_wrong_length_name_the_parameter():
+    with pytest.raises(ValueError, match=r"x_paired must hold one value per y \(3\), got 4"):
+        mf.mfmc_estimate(np.zeros(3), np.arange(16.0), alpha=1.0, x_paired=np.ones(4))

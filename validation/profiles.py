@@ -52,6 +52,11 @@ class Profile:
     # series_realizations and lyapunov_realizations (quick: on, 3 and 16)
     mf_engine_realizations: int = 3
     mf_twin_realizations: int = 16
+    # s: the lambda1 check's engine realisations, and the twin's paired with them, run
+    # this long; the twin's and the reduced model's m realisations lyapunov_duration.
+    # The paired difference engine - twin does not depend on it beyond 1e-4 1/s, 1/100
+    # of the check's interval (docs/performance.md); 0: lyapunov_duration (quick: 50 s)
+    mf_engine_duration: float = 50.0
     decimate: int = 5  # record every 5 ms
     spectrum_segment: float = 10.0  # s
     spectrum_band: tuple = (0.1, 20.0)  # Hz
@@ -165,6 +170,7 @@ PROFILES = {
     "smoke": Profile(
         name="smoke",
         mf_engine_realizations=0,  # 3 realisations: nothing left to save
+        mf_engine_duration=0.0,
         clip_duration=0.0,
         lyapunov_gains={"single": (19.5, 23.0), "coupled": (20.5, 23.0)},
         lyapunov_duration=20.0,

@@ -23,6 +23,7 @@ from cipcore.models import MODEL_NAMES, get_model
 from cipcore.noise import GainNoise, StackedNoise
 from cipcore.params import ParameterError
 from cipcore.registry import get_engine
+from cipcore.results import min_lyapunov_duration
 from cipcore.scenario import EngineTarget, Execution, Recording, Scenario
 from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
@@ -131,6 +132,19 @@ def lambda1_check(model: str, beta: float, value: float, ci95, se: float, red,
     )  # fmt: skip
 
 
+def engine_duration(profile: Profile, params: BalanceParams) -> float:
+    """The lambda1 check's engine duration (s) under the multifidelity allocation:
+    ``profile.mf_engine_duration`` (0: ``lyapunov_duration``); a one-line ParameterError
+    outside [the shortest Benettin run at tau, ``lyapunov_duration``]."""
+    full = profile.lyapunov_duration
+    short = profile.mf_engine_duration or full
+    shortest = min_lyapunov_duration(params.tau, params.dt)
+    if not shortest <= short <= full:
+        raise ParameterError(f"mf_engine_duration must be 0 or in [{shortest:g}, "
+                             f"lyapunov_duration = {full:g}] s, got {short:g}")  # fmt: skip
+    return float(short)
+
+
 def lambda1_multifidelity(
     scenarios: list[Scenario], engine: str, mapping, profile: Profile, body: dict, note: str
 ) -> list[tuple[Check, dict] | str]:
@@ -147,10 +161,16 @@ def lambda1_multifidelity(
     realisations of every gain in one call (a :class:`cipcore.noise.StackedNoise` with a
     gain per realisation: each realisation's exponent is the one it has alone), so a
     batched engine steps once for all gains and the threads share G x n realisations.
-    ``mapping`` is the model file's (:func:`cip.mjcf_params.read_mapping`), ``body`` the
-    engine's keywords.  Returns per gain either why, a line for the plain check's details,
-    where the estimate's interval is wider than plain sampling's would be at the same
-    spread (the twin does not follow the engine), or (the check, the stage's row).
+    The engine and the twin's n pairs run :func:`engine_duration` (``mf_engine_duration``,
+    shorter than ``lyapunov_duration``): the paired difference engine - twin is the same
+    over 50 s as over 200 s to 1e-4 1/s while the check's interval is about 1e-2
+    (docs/performance.md), and the estimate is mean_n(engine - twin over it) + mean_m(twin
+    over the whole duration) (:func:`validation.checks.multifidelity.mfmc_estimate`'s
+    ``x_paired``).  ``mapping`` is the model file's
+    (:func:`cip.mjcf_params.read_mapping`), ``body`` the engine's keywords.  Returns per
+    gain either why, a line for the plain check's details, where the estimate's interval
+    is wider than plain sampling's would be at the same spread (the twin does not follow
+    the engine), or (the check, the stage's row).
     """
     import time
 
@@ -164,13 +184,14 @@ def lambda1_multifidelity(
     if not mfe.MIN_PAIRED <= n < n_plain:
         raise ParameterError(f"mf_engine_realizations must be 0 or in [{mfe.MIN_PAIRED}, "
                              f"lyapunov_realizations = {n_plain}), got {n}")  # fmt: skip
+    short = engine_duration(profile, first.params)
     execution = Execution(threads=body["threads"])
     twin = TwinParams(**rigid_engine(engine).twin_terms(mapping))
     nc = get_model(model).n_controllers
     noise = StackedNoise([GainNoise(s.seed, n, nc) for s in scenarios])
     betas = np.repeat([s.params.beta for s in scenarios], n)
     t0 = time.perf_counter()
-    batch = rigid_engine(engine).lyapunov(model, first.params, duration, len(betas), first.seed,
+    batch = rigid_engine(engine).lyapunov(model, first.params, short, len(betas), first.seed,
                                           noise=noise, betas=betas, **body)  # fmt: skip
     engine_s = (time.perf_counter() - t0) / len(betas)  # per engine realisation
     out: list[tuple[Check, dict] | str] = []
@@ -181,12 +202,18 @@ def lambda1_multifidelity(
         cheap = replace(scenario, realizations=m)
         tw = lyapunov_twin(cheap, twin, epsilon=body["epsilon"], execution=execution)
         red = lyapunov(cheap, execution=execution)
-        w = engine_s / max((time.perf_counter() - t1) / m, 1e-9)
+        w = engine_s * duration / short / max((time.perf_counter() - t1) / m, 1e-9)
+        # the twin's pairs over the engine's duration (the first n of its m, shorter)
+        pairs = tw if short == duration else lyapunov_twin(
+            replace(scenario, realizations=n, duration=short), twin, epsilon=body["epsilon"],
+            execution=execution)  # fmt: skip
         # alpha fixed at 1 (engine - twin over n, plus the twin over m): the twin models
         # the engine itself, alpha* = 1 where it follows it, and 3 pairs cannot estimate
         # alpha (an unrelated control reached rho = -0.9995 at 3 pairs); with alpha given,
         # the residual's variance is unbiased with n - 1 degrees of freedom
-        est = mfe.mfmc_estimate(full.per_realization, tw.per_realization, alpha=1.0)
+        paired = None if pairs is tw else pairs.per_realization
+        est = mfe.mfmc_estimate(full.per_realization, tw.per_realization, alpha=1.0,
+                                x_paired=paired)  # fmt: skip
         plain = mfe.plain_half_width_at(tw.per_realization, n_plain)
         if not est.half_width <= plain:
             out.append(f"multifidelity not used: with the engine on {n} and its twin on {m} "
@@ -194,11 +221,12 @@ def lambda1_multifidelity(
                        f"plain sampling's (rho {est.rho:.6g}), so the engine ran "
                        f"{n_plain}")  # fmt: skip
             continue
+        same = "" if short == duration else f", paired with its twin over the same {short:g} s"
         details = (
-            f"multifidelity: engine {n} x {duration:g} s, its {twin.integrator} twin and the "
+            f"multifidelity: engine {n} x {short:g} s, its {twin.integrator} twin and the "
             f"reduced model {m} x {duration:g} s (same noise, nested; plain sampling: {n_plain} "
             f"x {duration:g} s; the engine ran the {len(scenarios)} gains' realisations in one "
-            f"batch), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, 1 - rho "
+            f"batch{same}), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, 1 - rho "
             f"{1 - est.rho:.2g}, half-width {est.half_width / plain:.3g} x plain sampling's, "
             f"cost ratio engine : twin + reduced w = {w:.3g} (measured)"
         )

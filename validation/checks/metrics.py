@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
@@ -282,6 +283,21 @@ def density_ratio_near_zero(
     ----------
     v_coupled, v_single : (realisations, samples) velocity errors (m/s).
     """
+    return density_ratios_near_zero(v_coupled, v_single, (half_width,), scale, normalise,
+                                    n_bootstrap, seed)[0]  # fmt: skip
+
+
+def density_ratios_near_zero(
+    v_coupled: np.ndarray,
+    v_single: np.ndarray,
+    half_widths: Sequence[float],
+    scale: str = "median_std",
+    normalise: bool = False,
+    n_bootstrap: int = 1000,
+    seed: int = 0,
+) -> list[DensityRatio]:
+    """:func:`density_ratio_near_zero` at each of ``half_widths``, the normalisation and
+    the scale computed once (each ratio equals its own call's, bootstrap included)."""
     vc = np.atleast_2d(np.asarray(v_coupled, dtype=float))
     vs = np.atleast_2d(np.asarray(v_single, dtype=float))
     if normalise:
@@ -290,27 +306,32 @@ def density_ratio_near_zero(
         sc = float(np.median(np.concatenate([np.std(vc, axis=-1), np.std(vs, axis=-1)])))
     else:
         sc = robust_scale(np.concatenate([vc.ravel(), vs.ravel()])[None], scale)
-    h = half_width * sc
-    # per-realisation counts within h and sample counts: the bootstrap resamples these
-    kc, nc = (np.abs(vc) < h).sum(axis=-1), np.isfinite(vc).sum(axis=-1)
-    ks, ns = (np.abs(vs) < h).sum(axis=-1), np.isfinite(vs).sum(axis=-1)
+    nc, ns = np.isfinite(vc).sum(axis=-1), np.isfinite(vs).sum(axis=-1)
+    ac, as_ = np.abs(vc), np.abs(vs)
+    out = []
+    for half_width in half_widths:
+        h = half_width * sc
+        # per-realisation counts within h and sample counts: the bootstrap resamples these
+        kc, ks = (ac < h).sum(axis=-1), (as_ < h).sum(axis=-1)
 
-    def ratio(ic, is_):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return (kc[ic].sum(-1) / nc[ic].sum(-1)) / (ks[is_].sum(-1) / ns[is_].sum(-1))
+        def ratio(ic, is_, kc=kc, ks=ks):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return (kc[ic].sum(-1) / nc[ic].sum(-1)) / (ks[is_].sum(-1) / ns[is_].sum(-1))
 
-    rng = np.random.default_rng(seed)
-    ic = rng.integers(0, kc.size, (n_bootstrap, kc.size))
-    is_ = rng.integers(0, ks.size, (n_bootstrap, ks.size))
-    boot = ratio(ic, is_)
-    lo, hi = np.nanpercentile(boot, [2.5, 97.5]) if np.isfinite(boot).any() else (np.nan,) * 2
-    return DensityRatio(
-        ratio=float(ratio(np.arange(kc.size), np.arange(ks.size))),
-        ci95=(float(lo), float(hi)), h=float(h), scale=sc, scale_method=scale,
-        half_width=float(half_width), normalised=bool(normalise),
-        fraction_coupled=float(kc.sum() / nc.sum()), fraction_single=float(ks.sum() / ns.sum()),
-        n_bootstrap=int(n_bootstrap), seed=int(seed),
-    )  # fmt: skip
+        rng = np.random.default_rng(seed)
+        ic = rng.integers(0, kc.size, (n_bootstrap, kc.size))
+        is_ = rng.integers(0, ks.size, (n_bootstrap, ks.size))
+        boot = ratio(ic, is_)
+        lo, hi = np.nanpercentile(boot, [2.5, 97.5]) if np.isfinite(boot).any() else (np.nan,) * 2
+        out.append(DensityRatio(
+            ratio=float(ratio(np.arange(kc.size), np.arange(ks.size))),
+            ci95=(float(lo), float(hi)), h=float(h), scale=sc, scale_method=scale,
+            half_width=float(half_width), normalised=bool(normalise),
+            fraction_coupled=float(kc.sum() / nc.sum()),
+            fraction_single=float(ks.sum() / ns.sum()),
+            n_bootstrap=int(n_bootstrap), seed=int(seed),
+        ))  # fmt: skip
+    return out
 
 
 # ----------------------------------------------------------------- STCC

@@ -147,7 +147,9 @@ def welch_df(v1: float, df1: float, v2: float, df2: float) -> float:
     return float((v1 + v2) ** 2 / den) if den > 0 else float(max(df1, df2))
 
 
-def mfmc_estimate(y: np.ndarray, x: np.ndarray, alpha: float | None = None) -> MFEstimate:
+def mfmc_estimate(
+    y: np.ndarray, x: np.ndarray, alpha: float | None = None, x_paired: np.ndarray | None = None
+) -> MFEstimate:
     """Two-model MFMC estimate of E[y] from n paired samples and m >= n of x (nested).
 
     Parameters
@@ -159,6 +161,14 @@ def mfmc_estimate(y: np.ndarray, x: np.ndarray, alpha: float | None = None) -> M
         (same noise), x[n:] are further independent realisations.
     alpha : float or None
         The control-variate coefficient; None: alpha* estimated from the pairs.
+    x_paired : numpy.ndarray or None
+        (n,) the cheap quantity paired with y where the pairs ran another setting than
+        x (the lambda1 check's engine and its twin's pairs over a shorter duration, x
+        over the full one): mu_hat = mean_n(y - alpha x_paired) + alpha xbar_m, an
+        estimate of E[y] at x's setting where E[y - alpha x] does not depend on it.
+        The pairs' realisations are among x's, run longer, so mean_n(y - alpha x_paired)
+        and xbar_m may correlate: the variance then takes the Cauchy-Schwarz bound of
+        their covariance, v_paired + v_extra + 2 sqrt(v_paired v_extra n / m).
 
     Returns
     -------
@@ -173,7 +183,9 @@ def mfmc_estimate(y: np.ndarray, x: np.ndarray, alpha: float | None = None) -> M
     """
     y, x = _check_samples(y, x)
     n, m = y.size, x.size
-    xp = x[:n]
+    xp = x[:n] if x_paired is None else _check_samples(y, np.asarray(x_paired, float))[1]
+    if xp.size != n:
+        raise ValueError(f"x_paired must hold one value per y ({n}), got {xp.size}")
     estimated = alpha is None
     a, rho = control_variate(y, xp)
     if not estimated:
@@ -183,7 +195,8 @@ def mfmc_estimate(y: np.ndarray, x: np.ndarray, alpha: float | None = None) -> M
     v1 = float((y - a * xp).var(ddof=2 if estimated else 1) / n)
     v2 = float(a * a * x.var(ddof=1) / m) if m > 1 else 0.0
     df = welch_df(v1, n - 2 if estimated else n - 1, v2, max(m - 1, 1))
-    se = float(np.sqrt(v1 + v2))
+    cross = 0.0 if x_paired is None else 2.0 * np.sqrt(v1 * v2 * n / m)
+    se = float(np.sqrt(v1 + v2 + cross))
     vy = (v1 * n + v2 * m) / n  # sigma_y^2 / n, sigma_y from every sample (MFEstimate.sigma_y)
     return MFEstimate(
         mean=mean, se=se, half_width=float(t975(df) * se), df=df, alpha=a,

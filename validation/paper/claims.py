@@ -502,11 +502,11 @@ def velocity_grid(profile: Profile, threads: int | None, grid: dict) -> list[dic
         k = max(2, round(frac * n))
         for scale in grid["scale"]:
             for norm in grid["normalise"]:
-                for hw in grid["half_width"]:
-                    res = metrics.density_ratio_near_zero(
-                        sets["coupled"]["ev"][:, :k], sets["single"]["ev"][:, :k], hw, scale,
-                        norm, profile.n_bootstrap, profile.seed_for("robustness", "velocity"),
-                    )  # fmt: skip
+                for res in metrics.density_ratios_near_zero(
+                    sets["coupled"]["ev"][:, :k], sets["single"]["ev"][:, :k],
+                    grid["half_width"], scale, norm, profile.n_bootstrap,
+                    profile.seed_for("robustness", "velocity"),
+                ):  # fmt: skip
                     rows.append({"duration": frac * profile.peak_duration, **res.as_dict()})
     return rows
 
