@@ -171,6 +171,9 @@ def lambda1_multifidelity(
     gain either why, a line for the plain check's details, where the estimate's interval
     is wider than plain sampling's would be at the same spread (the twin does not follow
     the engine), or (the check, the stage's row).
+
+    The function is long because one engine call serves every gain, and each gain's check
+    is then built from its part of the batch, its twin's two runs and the reduced model's.
     """
     import time
 
