@@ -170,9 +170,18 @@ def advance_twin(
 
 
 @njit(cache=True, nogil=True)
-def _deviation_norm(st: np.ndarray, hist: np.ndarray, rates: np.ndarray) -> float:
-    """The Benettin norm (m) of one realisation: :func:`reduced.twin_lyapunov.deviation_norm`
-    of ``st`` (C, 4), ``hist`` and ``rates`` (C, d)."""
+def _renormalise(st: np.ndarray, hist: np.ndarray, rates: np.ndarray, epsilon: float) -> float:
+    """Benettin's renormalisation of one realisation in place; returns the norm before it.
+
+    The norm (m), all terms in m or m/s, of the state ``st`` (C, 4) = [x, e, v, e'] per
+    balancer, the delayed errors ``hist`` and their rates ``rates`` (C, d)::
+
+        sqrt( sum_i (x_i - mean_j x_j)^2 + e_i^2 + v_i^2 + e_i'^2
+              + sum over the delay buffer of e_i^2 + e_i'^2 ),
+
+    then the carts' common drift is dropped and everything is scaled by epsilon / norm
+    (left as it is where the norm is not finite).
+    """
     nc, d = hist.shape
     mean = 0.0
     for i in range(nc):
@@ -187,7 +196,30 @@ def _deviation_norm(st: np.ndarray, hist: np.ndarray, rates: np.ndarray) -> floa
     for i in range(nc):
         for j in range(d):
             s += hist[i, j] ** 2 + rates[i, j] ** 2
-    return np.sqrt(s)
+    norm = np.sqrt(s)
+    if not np.isfinite(norm):
+        return norm
+    c = epsilon / norm
+    for i in range(nc):
+        st[i, 0] -= mean
+        for q in range(4):
+            st[i, q] *= c
+        for j in range(d):
+            hist[i, j] *= c
+            rates[i, j] *= c
+    return norm
+
+
+@njit(cache=True, nogil=True)
+def renormalise_twin(
+    state: np.ndarray, hist: np.ndarray, rates: np.ndarray, epsilon: float
+) -> np.ndarray:
+    """:func:`_renormalise` of every realisation of ``state`` (R, C, 4), ``hist`` and
+    ``rates`` (R, C, d); returns the norms (R,) before it."""
+    out = np.empty(state.shape[0])
+    for r in range(state.shape[0]):
+        out[r] = _renormalise(state[r], hist[r], rates[r], epsilon)
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -213,11 +245,11 @@ def benettin_twin(
     n0 + a, a multiple of d, does); ``rates`` (R, C, d) then
     holds the balancing error's rates e' (m/s) at the last d steps in time order (the
     recorded tip velocity less the cart's, as the engine's buffer holds them).  After
-    each stretch the deviation is measured (:func:`_deviation_norm`), log(norm /
-    ``epsilon``) is added to ``logsum`` (R,) once the run is past ``transient_steps``,
-    and the deviation (state, ``hist``, ``rates``) is scaled back to ``epsilon`` with the
-    carts' common drift dropped.  Returns the global step after which a realisation's
-    norm was first not finite, else -1 (the state is then left as it was).
+    each stretch the deviation is renormalised (:func:`_renormalise`: scaled back to
+    ``epsilon``, the carts' common drift dropped) and log(norm / ``epsilon``) is added to
+    ``logsum`` (R,) once the run is past ``transient_steps``.  Returns the global step
+    after which a realisation's norm was first not finite, else -1 (the state is then
+    left as it was).
     """
     nb, n, nc = xi.shape
     d = hist.shape[2]
@@ -233,21 +265,9 @@ def benettin_twin(
                 for j in range(m):
                     rates[r, i, d - m + j] = rec[0, j, i, 1] - rec[0, j, i, 3]
             done = n0 + a + m
-            norm = _deviation_norm(state[r], hist[r], rates[r])
+            norm = _renormalise(state[r], hist[r], rates[r], epsilon)
             if not np.isfinite(norm):
                 return done
             if done > transient_steps:
                 logsum[r] += np.log(norm / epsilon)
-            c = epsilon / norm
-            mean = 0.0
-            for i in range(nc):
-                mean += state[r, i, 0]
-            mean /= nc
-            for i in range(nc):
-                state[r, i, 0] -= mean
-                for q in range(4):
-                    state[r, i, q] *= c
-                for j in range(d):
-                    hist[r, i, j] *= c
-                    rates[r, i, j] *= c
     return -1

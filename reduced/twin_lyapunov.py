@@ -14,7 +14,8 @@ engine's lambda1 as well as many engine realisations.
 
 Everything is the engine estimator's: the initial deviation
 (:func:`cipcore.seeds.tangent_deviation`), the renormalisation every tau (d
-steps), the norm (all terms in m or m/s)::
+steps, compiled: :func:`reduced._twin_kernel.benettin_twin`), the norm (all terms in
+m or m/s)::
 
     sqrt( sum_i (x_i - mean_j x_j)^2 + e_i^2 + v_i^2 + e_i'^2
           + sum over the delay buffer (steps n - d .. n - 1) of e_i^2 + e_i'^2 ),
@@ -38,33 +39,9 @@ from cipcore.schema import check_duration
 from cipcore.seeds import tangent_deviation
 from cipcore.stats import mean_ci95
 
-from ._twin_kernel import benettin_twin
+from ._twin_kernel import benettin_twin, renormalise_twin
 from .simulate import n_controllers
 from .twin import TWIN_SCHEMES, TwinParams, twin_coefficients
-
-
-def deviation_norm(state: np.ndarray, hist: np.ndarray, rate_hist: np.ndarray) -> np.ndarray:
-    """The Benettin norm (m, per realisation) of the module docstring.
-
-    Parameters
-    ----------
-    state : (R, C, 4) [x, e, v, e'] per balancer (m, m/s).
-    hist : (R, C, d) the delayed balancing errors (m), any order.
-    rate_hist : (R, C, d) their rates (m/s).
-    """
-    x = state[:, :, 0]
-    s = ((x - x.mean(axis=1, keepdims=True)) ** 2).sum(axis=1)
-    s += (state[:, :, 1:] ** 2).sum(axis=(1, 2))
-    s += (hist**2).sum(axis=(1, 2)) + (rate_hist**2).sum(axis=(1, 2))
-    return np.sqrt(s)
-
-
-def rescale(state: np.ndarray, hist: np.ndarray, c: np.ndarray) -> None:
-    """Scale each realisation's deviation, ``state`` (R, C, 4) and ``hist`` (R, C, d), by
-    c (R,) in place, the carts' common drift dropped (it is neutral)."""
-    state[:, :, 0] -= state[:, :, 0].mean(axis=1, keepdims=True)
-    state *= c[:, None, None]
-    hist *= c[:, None, None]
 
 
 def initial_deviation(seed: int, n_realizations: int, n_controllers: int,
@@ -134,7 +111,7 @@ def lyapunov_twin(
     minv, mstep, scheme = twin.inverse_mass(), twin.step_matrix(), TWIN_SCHEMES[twin.integrator]
     logsum = np.zeros(nreal)
     start = (transient_steps // d) * d
-    rescale(state, hist, epsilon / deviation_norm(state, hist, rates))
+    renormalise_twin(state, hist, rates, epsilon)  # the start, at norm epsilon
 
     def work(block: slice, xi: np.ndarray, step: int) -> None:
         bad = benettin_twin(xi, state[block], hist[block], rates[block], coef, minv, mstep,
