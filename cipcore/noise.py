@@ -196,7 +196,7 @@ class StackedNoise(_NoiseSource):
 
 def make_noise(
     noise: GainNoise | ArrayNoise | StackedNoise | None, seed: int, n_realizations: int, nc: int
-) -> GainNoise | ArrayNoise:
+) -> GainNoise | ArrayNoise | StackedNoise:
     """A fresh seeded :class:`GainNoise`, or ``noise`` checked for C streams at step 0."""
     if noise is None:
         return GainNoise(seed, check_count("realizations", n_realizations), nc)

@@ -211,15 +211,12 @@ def _renormalise(st: np.ndarray, hist: np.ndarray, rates: np.ndarray, epsilon: f
 
 
 @njit(cache=True, nogil=True)
-def renormalise_twin(
-    state: np.ndarray, hist: np.ndarray, rates: np.ndarray, epsilon: float
-) -> np.ndarray:
+def renormalise_twin(state: np.ndarray, hist: np.ndarray, rates: np.ndarray,
+                     epsilon: float) -> None:  # fmt: skip
     """:func:`_renormalise` of every realisation of ``state`` (R, C, 4), ``hist`` and
-    ``rates`` (R, C, d); returns the norms (R,) before it."""
-    out = np.empty(state.shape[0])
+    ``rates`` (R, C, d)."""
     for r in range(state.shape[0]):
-        out[r] = _renormalise(state[r], hist[r], rates[r], epsilon)
-    return out
+        _renormalise(state[r], hist[r], rates[r], epsilon)
 
 
 @njit(cache=True, nogil=True)

@@ -269,6 +269,11 @@ def test_pairs_over_another_duration_keep_their_coverage(k):
     assert np.mean(hits) >= 0.93  # 0.90 at k = 0.3 without the covariance bound
 
 
-def test_pairs_of_the_wrong_length_name_the_parameter():
-    with pytest.raises(ValueError, match=r"x_paired must hold one value per y \(3\), got 4"):
-        mf.mfmc_estimate(np.zeros(3), np.arange(16.0), alpha=1.0, x_paired=np.ones(4))
+@pytest.mark.parametrize("x_paired, match", [
+    (np.ones(4), r"x_paired must hold one value per y \(3\), got 4"),
+    (np.ones(2), r"x_paired must hold one value per y \(3\), got 2"),
+    (np.array([1.0, np.nan, 1.0]), "x_paired must be finite"),
+])  # fmt: skip
+def test_pairs_that_do_not_fit_name_the_parameter(x_paired, match):
+    with pytest.raises(ValueError, match=match):
+        mf.mfmc_estimate(np.zeros(3), np.arange(16.0), alpha=1.0, x_paired=x_paired)

@@ -183,9 +183,11 @@ def mfmc_estimate(
     """
     y, x = _check_samples(y, x)
     n, m = y.size, x.size
-    xp = x[:n] if x_paired is None else _check_samples(y, np.asarray(x_paired, float))[1]
+    xp = x[:n] if x_paired is None else np.asarray(x_paired, dtype=float).ravel()
     if xp.size != n:
         raise ValueError(f"x_paired must hold one value per y ({n}), got {xp.size}")
+    if not np.isfinite(xp).all():
+        raise ValueError("x_paired must be finite (drop the non-finite pairs first)")
     estimated = alpha is None
     a, rho = control_variate(y, xp)
     if not estimated:
