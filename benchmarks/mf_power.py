@@ -23,17 +23,20 @@ is printed before and after.
         [--faults tip_damping,noise_scale --sizes 0.01,0.03 --fault-seeds 3] [--json FILE]
 
 ``--faults`` also runs the engine with each fault of the catalogue
-(:mod:`validation.faults.catalogue`) at each size and prints, per check, at how many of
-``--fault-seeds`` seeds each allocation flagged it (failed).
+(:mod:`validation.faults.catalogue`) at each size (with ``--stage lambda1``, in the
+engine's Benettin runs) and prints, per check, at how many of ``--fault-seeds`` seeds each
+allocation flagged it (failed).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 
 import numpy as np
@@ -104,6 +107,38 @@ def with_fault(kind: str, size: float):
                             decimate=decimate, threads=threads)  # fmt: skip
 
     return run_full
+
+
+@contextlib.contextmanager
+def fault_injected(kind: str, size: float, stage: str) -> Iterator[None]:
+    """The engine carries fault ``kind`` of ``size`` while the block runs: the series'
+    engine runs (:func:`with_fault`) or, for ``stage`` "lambda1", every rigid-body engine's
+    Benettin runs (the fault's parameters and rollout backend); the twin and the reduced
+    model stay correct."""
+    from validation.checks import agreement
+
+    if stage != "lambda1":
+        real = agreement.run_full
+        agreement.run_full = with_fault(kind, size)
+        try:
+            yield
+        finally:
+            agreement.run_full = real
+        return
+    from cip.engines.rigid_body import RigidBodyEngine
+    from validation.faults.catalogue import make_fault
+
+    fault, real = make_fault(kind, size), RigidBodyEngine.lyapunov
+
+    def lyapunov(self, model, params, *args, **options):
+        return real(self, model, fault.engine_params(params), *args,
+                    backend=fault.backend(self.rollout()), **options)  # fmt: skip
+
+    RigidBodyEngine.lyapunov = lyapunov
+    try:
+        yield
+    finally:
+        del RigidBodyEngine.lyapunov  # the inherited method again
 
 
 def fell_back(checks: list) -> bool:
@@ -184,24 +219,20 @@ def print_table(base, a, rows: dict[str, list[dict]]) -> list[dict]:
 def fault_runs(base, a) -> list[dict]:
     """Each fault of ``a.faults`` at each size, ``a.fault_seeds`` seeds, both allocations:
     per fault, size and check, the seeds at which it failed (flagged the fault)."""
-    from validation.checks import agreement
-
-    out, real = [], agreement.run_full
+    out = []
+    stage = getattr(a, "stage", "series")
     for kind in filter(None, a.faults.split(",")):
         for size in (float(x) for x in a.sizes.split(",")):
             flagged: dict[str, list[int]] = {}
-            agreement.run_full = with_fault(kind, size)
-            try:
+            with fault_injected(kind, size, stage):
                 for k in range(a.fault_seeds):
                     plain = replace(base, seed=a.first_seed + k, mf_engine_realizations=0)
                     mf = replace(plain, mf_engine_realizations=a.mf_engine,
                                  mf_twin_realizations=a.mf_twin)  # fmt: skip
                     for j, prof in enumerate((plain, mf)):
-                        for c in run_once(prof, a.engine, a.threads)[0]:
+                        for c in run_once(prof, a.engine, a.threads, stage)[0]:
                             hits = flagged.setdefault(c["name"], [0, 0])
                             hits[j] += c["status"] == "fail"
-            finally:
-                agreement.run_full = real
             for name, (p, m) in flagged.items():
                 out.append({"fault": kind, "size": size, "check": name, "fail_plain": p,
                             "fail_mf": m})  # fmt: skip
@@ -265,8 +296,6 @@ def main() -> int:
     base = PROFILES[a.profile]
     if not 3 <= a.mf_engine < base.series_realizations:
         ap.error(f"--mf-engine must be in [3, {base.series_realizations}), got {a.mf_engine}")
-    if a.stage == "lambda1" and a.faults:
-        ap.error("--faults applies to --stage series only")
     if min(a.threads, a.fault_seeds) < 1 or a.seeds < 0 or a.mf_twin < base.series_realizations:
         ap.error(f"--fault-seeds and --threads must be >= 1, --seeds >= 0 and --mf-twin >= "
                  f"{base.series_realizations}")  # fmt: skip
