@@ -101,3 +101,50 @@ def test_outside_the_main_thread_it_refuses_and_leaves_no_descriptor_open():
     t.start()
     t.join()
     assert len(errors) == 1 and set(os.listdir("/proc/self/fd")) == fds
+
+
+_THROUGH_PYRUN = """
+import ctypes, sys
+import validation.cli.main as cli
+
+def interrupted_run(argv=None):
+    # a KeyboardInterrupt that leaves code run by PyRun_String (as an extension module's
+    # py::exec does, e.g. while a signal arrives during its import), caught by the run
+    run = ctypes.pythonapi.PyRun_String
+    run.restype = ctypes.py_object
+    run.argtypes = [ctypes.c_char_p, ctypes.c_int, ctypes.py_object, ctypes.py_object]
+    try:
+        run(b"raise KeyboardInterrupt", 257, {}, {})
+    except KeyboardInterrupt:
+        return 143
+    return 0
+
+cli.main = interrupted_run
+if sys.argv[1] == "entry":
+    cli.entry()
+sys.exit(interrupted_run())
+"""
+
+
+@pytest.mark.parametrize("how", ["entry", "plain"])
+def test_a_handled_interrupt_keeps_its_status_when_it_passed_through_pyrun_string(how, tmp_path):
+    """Run as ``python -m`` (as the tests run ``python -m validation.cli.main``), CPython
+    exits by SIGINT (-2, or 130 with SIGINT blocked) when a KeyboardInterrupt once left
+    code run through ``PyRun_String``, even though the program caught it and exits with
+    its own status (a run stopped by SIGTERM ended 130 in CI).  ``entry`` clears that
+    record (``forget_handled_keyboard_interrupt``); the plain ``sys.exit`` shows the
+    record is there to clear."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "through_pyrun.py").write_text(_THROUGH_PYRUN)
+    repo = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), repo])}
+    proc = subprocess.run([sys.executable, "-m", "through_pyrun", how], capture_output=True,
+                          text=True, timeout=120, env=env)  # fmt: skip
+    if how == "entry":
+        assert proc.returncode == 143, proc.stderr
+    else:
+        assert proc.returncode in (-signal.SIGINT, 128 + signal.SIGINT), proc.stderr

@@ -386,12 +386,42 @@ def ignore_signals_after_interrupt() -> None:
     instead of the first signal's (seen once in CI: a run stopped by SIGTERM that
     printed its message and then ended killed by SIGINT).  Ignoring alone is not
     enough where finalisation sets the default action back before the process ends,
-    so both signals are blocked too: a later one stays pending through the exit (a
-    resumed run that printed "interrupted by SIGTERM" ended with -2 on a loaded
-    machine, 1 run in 6, before the block).  A program that calls
+    so both signals are blocked too: a later one stays pending through the exit.  (A
+    resumed run that printed "interrupted by SIGTERM" and ended with -2, 1 run in 6 on
+    a loaded machine, and with 130 after the block, had another cause: CPython's own
+    exit by SIGINT, see :func:`forget_handled_keyboard_interrupt`.)  A program that calls
     :func:`validation.cli.main.main` itself keeps its own handlers.
     """
     _AFTER_SIGNAL["ignore"] = True
+
+
+def forget_handled_keyboard_interrupt() -> None:
+    """Clear CPython's record of an unhandled KeyboardInterrupt once ours was handled.
+
+    CPython ends a process whose KeyboardInterrupt went unhandled by SIGINT (status
+    -2, or 130 where SIGINT is blocked; bpo-1054041), and decides so from a flag that
+    every code object run through ``PyRun_String`` sets when a KeyboardInterrupt leaves
+    it, and that nothing clears when the exception is then caught further up.  Extension
+    modules run such code (MuJoCo's ``_callbacks``, pydrake, Exudyn, Boost.Python): in a
+    smoke run the one call is ``mujoco.set_mju_user_warning`` when :mod:`cip.model` is
+    imported, at the start of the first engine stage, so a signal that arrived just then
+    left a run that stopped cleanly and returned 143 ending with 130 under
+    ``python -m`` (seen in CI: "interrupted by SIGTERM" printed, status 130; the console
+    script's file exits before that check).  Running one
+    trivial statement through ``PyRun_String`` clears the flag: CPython resets it
+    before each such run (``run_eval_code_obj``).  Called by the console script after
+    :func:`validation.cli.main.main` returned, i.e. with no KeyboardInterrupt in flight.
+    """
+    import ctypes
+
+    try:
+        run = ctypes.pythonapi.PyRun_String
+    except (AttributeError, OSError):  # not CPython: no such flag
+        return
+    run.restype = ctypes.py_object
+    run.argtypes = [ctypes.c_char_p, ctypes.c_int, ctypes.py_object, ctypes.py_object]
+    py_eval_input = 258
+    run(b"None", py_eval_input, {}, {})
 
 
 def _first_arrival(fd: int, fallback: int) -> int:

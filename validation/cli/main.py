@@ -48,6 +48,7 @@ from validation.cli.args import (
     EXIT_USAGE,
     PROG,
     CLIParser,
+    forget_handled_keyboard_interrupt,
     ignore_signals_after_interrupt,
 )
 from validation.cli.exitcodes import EXIT_CRASH
@@ -283,7 +284,9 @@ def entry() -> None:
     (:func:`validation.cli.args.ignore_signals_after_interrupt`).
     """
     ignore_signals_after_interrupt()
-    sys.exit(main())
+    status = main()
+    forget_handled_keyboard_interrupt()  # main returned: every KeyboardInterrupt was handled
+    sys.exit(status)
 
 
 if __name__ == "__main__":
