@@ -81,7 +81,10 @@ def run_blocks(
             if cancel.is_set():
                 return
             n = min(chunk_steps, n_steps - n0)
-            xi = buf[:, :n]
+            # C-contiguous draws in every chunk, the last (shorter) one too: a strided
+            # view would have numba compile each kernel a second time, for layout 'A'
+            # (1.4 s of a first run after install), for the same numbers
+            xi = buf if n == buf.shape[1] else np.empty((nb, n, noise.n_controllers))
             for j in range(nb):
                 noise.fill(block.start + j, xi[j])
             if work(block, xi, n0) is False:

@@ -103,8 +103,36 @@ def _rk4_step(st: np.ndarray, u: np.ndarray, coef: np.ndarray, minv: np.ndarray,
         st[i, 3] = y0[i, 3] + h * dv[i, 1]
 
 
-@njit(cache=True, nogil=True)
-def advance_twin(
+@njit(inline="always", cache=True, nogil=True)
+def _twin_step(
+    st: np.ndarray,
+    u: np.ndarray,
+    coef: np.ndarray,
+    minv: np.ndarray,
+    mstep: np.ndarray,
+    h: float,
+    ax: np.ndarray,
+    ae: np.ndarray,
+    scheme: int,
+) -> None:
+    """One step of ``scheme`` (:func:`_advance`) of one realisation's state ``st`` (C, 4)
+    in place under controls ``u``; ``ax``, ``ae`` (C,) scratch for the Euler schemes."""
+    if scheme == 2:
+        _rk4_step(st, u, coef, minv, h)
+    elif scheme == 3:
+        newmark_step(st, u, coef, mstep, h)
+    elif scheme == 4:
+        merson_step(st, u, coef, minv, h)
+    else:
+        _accelerations(st, u, coef, minv, mstep, ax, ae)
+        for i in range(st.shape[0]):
+            x = st[i]
+            x[0], x[2] = euler_step(x[0], x[2], ax[i], h, True)
+            x[1], x[3] = euler_step(x[1], x[3], ae[i], h, True)
+
+
+@njit(inline="always", cache=True, nogil=True)
+def _advance(
     xi: np.ndarray,
     state: np.ndarray,
     hist: np.ndarray,
@@ -152,18 +180,7 @@ def advance_twin(
                     record_balancer(rec, r, j, i, x + e, v + w, x, v)
             for i in range(nc):
                 u[i] = delayed_control(hist[r, i], p, state[r, i, 1], beta, s_noise, xi[r, k, i])
-            if scheme == 2:
-                _rk4_step(state[r], u, coef, minv, h)
-            elif scheme == 3:
-                newmark_step(state[r], u, coef, mstep, h)
-            elif scheme == 4:
-                merson_step(state[r], u, coef, minv, h)
-            else:
-                _accelerations(state[r], u, coef, minv, mstep, ax, ae)
-                for i in range(nc):
-                    st = state[r, i]
-                    st[0], st[2] = euler_step(st[0], st[2], ax[i], h, True)
-                    st[1], st[3] = euler_step(st[1], st[3], ae[i], h, True)
+            _twin_step(state[r], u, coef, minv, mstep, h, ax, ae, scheme)
             p = ring_next(p, d)
         p_out = p
     return p_out
@@ -219,8 +236,8 @@ def renormalise_twin(state: np.ndarray, hist: np.ndarray, rates: np.ndarray,
         _renormalise(state[r], hist[r], rates[r], epsilon)
 
 
-@njit(cache=True, nogil=True)
-def benettin_twin(
+@njit(inline="always", cache=True, nogil=True)
+def _benettin(
     xi: np.ndarray,
     state: np.ndarray,
     hist: np.ndarray,
@@ -237,7 +254,7 @@ def benettin_twin(
     """Benettin's method on the twin over ``xi.shape[1]`` steps from global step ``n0``
     (a multiple of d).
 
-    Each realisation advances by :func:`advance_twin` a delay (d steps) at a time, the
+    Each realisation advances by :func:`_advance` a delay (d steps) at a time, the
     last stretch of the run maybe shorter (each stretch starts at ring slot 0, as step
     n0 + a, a multiple of d, does); ``rates`` (R, C, d) then
     holds the balancing error's rates e' (m/s) at the last d steps in time order (the
@@ -254,8 +271,8 @@ def benettin_twin(
     for r in range(nb):
         for a in range(0, n, d):
             m = min(d, n - a)
-            advance_twin(xi[r : r + 1, a : a + m], state[r : r + 1], hist[r : r + 1],
-                         0, coef, minv, mstep, scheme, 0, 1, rec)  # fmt: skip
+            _advance(xi[r : r + 1, a : a + m], state[r : r + 1], hist[r : r + 1],
+                     0, coef, minv, mstep, scheme, 0, 1, rec)  # fmt: skip
             for i in range(nc):
                 for j in range(d - m):
                     rates[r, i, j] = rates[r, i, j + m]
@@ -268,3 +285,32 @@ def benettin_twin(
             if done > transient_steps:
                 logsum[r] += np.log(norm / epsilon)
     return -1
+
+
+def _kernels_for(scheme: int) -> tuple:
+    """(advance_twin, benettin_twin) compiled for one scheme (:data:`KERNELS`): the
+    arguments of :func:`_advance` and :func:`_benettin` less ``scheme``."""
+    A = np.ndarray
+
+    @njit(cache=True, nogil=True)
+    def advance_twin(xi: A, state: A, hist: A, pos: int, coef: A, minv: A, mstep: A, n0: int,
+                     every: int, rec: A) -> int:  # fmt: skip
+        return _advance(xi, state, hist, pos, coef, minv, mstep, scheme, n0, every, rec)
+
+    @njit(cache=True, nogil=True)
+    def benettin_twin(xi: A, state: A, hist: A, rates: A, coef: A, minv: A, mstep: A, n0: int,
+                      transient_steps: int, epsilon: float, logsum: A) -> int:  # fmt: skip
+        return _benettin(xi, state, hist, rates, coef, minv, mstep, scheme, n0, transient_steps,
+                         epsilon, logsum)  # fmt: skip
+
+    return advance_twin, benettin_twin
+
+
+#: The twin's kernels per scheme code (``reduced.twin.TWIN_SCHEMES``): ``KERNELS[scheme]``
+#: is (advance_twin, benettin_twin), :func:`_advance` and :func:`_benettin` with the
+#: scheme a constant of the kernel, so that numba drops the other schemes' branches and
+#: compiles only the steps a run uses (a first run after install with MuJoCo's ``Euler``
+#: skips RK4, Newmark and RK-Merson: 2.4 s of the 4.4 s it compiled, numba's timers;
+#: the numbers are the generic loop's, bit for bit).  Each kernel is cached on its own
+#: (numba keys a closure's cache entry by its constants).
+KERNELS = tuple(_kernels_for(scheme) for scheme in range(5))

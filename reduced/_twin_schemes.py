@@ -33,8 +33,8 @@ the engine's own and follow the stages.
   projection onto the constraint manifold after the step is the identity to
   first order in the angles.
 
-numba's cache of :func:`reduced._twin_kernel.advance_twin` does not see edits to
-this file: after changing it, clear ``reduced/__pycache__`` (or edit the kernel).
+numba's cache of the twin's kernels (:data:`reduced._twin_kernel.KERNELS`) does not see
+edits to this file: after changing it, clear ``reduced/__pycache__`` (or edit the kernel).
 """
 
 from __future__ import annotations

@@ -67,10 +67,10 @@ from cipcore.params import BalanceParams, ParameterError, check_positive
 from cipcore.scenario import Execution, Recording, Scenario
 from cipcore.schema import Trajectory
 
-from ._twin_kernel import advance_twin
+from ._twin_kernel import KERNELS
 from .simulate import n_controllers, plan_run
 
-#: MuJoCo's integrator names -> the kernel's scheme (:func:`reduced._twin_kernel.advance_twin`);
+#: MuJoCo's integrator names -> the kernel's scheme (:func:`reduced._twin_kernel._advance`);
 #: "Newmark" (beta 1/2, gamma 1) and "RK-Merson" (fixed step) hold the rod rigid.
 TWIN_SCHEMES = {"Euler": 0, "implicit": 1, "implicitfast": 1, "RK4": 2, "Newmark": 3,
                 "RK-Merson": 4}  # fmt: skip
@@ -142,7 +142,7 @@ class TwinParams:
 
 
 def twin_coefficients(twin: TwinParams, params: BalanceParams) -> np.ndarray:
-    """The kernel's ``coef`` (:func:`reduced._twin_kernel.advance_twin`) for ``twin``
+    """The kernel's ``coef`` (:func:`reduced._twin_kernel._advance`) for ``twin``
     under the controller of ``params`` (beta in 1/s^2, the noise scale nu / sqrt(dt))."""
     return np.array([
         twin.alpha, twin.gamma_tip, twin.gamma_cart, twin.mass_ratio, params.beta,
@@ -180,12 +180,12 @@ def simulate_twin(
     coef = twin_coefficients(twin, params)
     minv = twin.inverse_mass()
     mstep = twin.step_matrix()
-    scheme = TWIN_SCHEMES[twin.integrator]
+    advance_twin = KERNELS[TWIN_SCHEMES[twin.integrator]][0]
 
     def advance(block: slice, xi: np.ndarray, n0: int, nrec: int) -> np.ndarray:
         rec = np.empty((xi.shape[0], nrec, nc, 4))
         advance_twin(
-            xi, state[block], hist[block], n0 % d, coef, minv, mstep, scheme, n0, run.decimate, rec
+            xi, state[block], hist[block], n0 % d, coef, minv, mstep, n0, run.decimate, rec
         )
         return rec
 

@@ -14,7 +14,7 @@ engine's lambda1 as well as many engine realisations.
 
 Everything is the engine estimator's: the initial deviation
 (:func:`cipcore.seeds.tangent_deviation`), the renormalisation every tau (d
-steps, compiled: :func:`reduced._twin_kernel.benettin_twin`), the norm (all terms in
+steps, compiled: :func:`reduced._twin_kernel._benettin`), the norm (all terms in
 m or m/s)::
 
     sqrt( sum_i (x_i - mean_j x_j)^2 + e_i^2 + v_i^2 + e_i'^2
@@ -39,7 +39,7 @@ from cipcore.schema import check_duration
 from cipcore.seeds import tangent_deviation
 from cipcore.stats import mean_ci95
 
-from ._twin_kernel import benettin_twin, renormalise_twin
+from ._twin_kernel import KERNELS, renormalise_twin
 from .simulate import n_controllers
 from .twin import TWIN_SCHEMES, TwinParams, twin_coefficients
 
@@ -108,14 +108,15 @@ def lyapunov_twin(
     nreal, d = noise.n_realizations, params.delay_steps
     state, hist, rates = initial_deviation(scenario.seed, nreal, nc, d)
     coef = twin_coefficients(twin, params)
-    minv, mstep, scheme = twin.inverse_mass(), twin.step_matrix(), TWIN_SCHEMES[twin.integrator]
+    minv, mstep = twin.inverse_mass(), twin.step_matrix()
+    benettin_twin = KERNELS[TWIN_SCHEMES[twin.integrator]][1]
     logsum = np.zeros(nreal)
     start = (transient_steps // d) * d
     renormalise_twin(state, hist, rates, epsilon)  # the start, at norm epsilon
 
     def work(block: slice, xi: np.ndarray, step: int) -> None:
         bad = benettin_twin(xi, state[block], hist[block], rates[block], coef, minv, mstep,
-                            scheme, step, transient_steps, epsilon, logsum[block])  # fmt: skip
+                            step, transient_steps, epsilon, logsum[block])  # fmt: skip
         if bad >= 0:
             raise FloatingPointError(f"non-finite twin state at t = {bad * params.dt:.4g} s")
 
