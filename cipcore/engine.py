@@ -54,6 +54,14 @@ class Capabilities:
         and ``cip-validate engines`` hold it to this).
     packs_points : True when a sweep should pack every grid point x realisation
         into one batch (:mod:`validation.sweeps.gpu`) instead of a point at a time.
+    batch : True when every realisation of a call is one world of a batch stepped
+        together, so that a call costs about as much for 16 realisations as for 3
+        (warp's worlds: MuJoCo Warp, Newton; each step is a set of kernel launches
+        whatever the worlds).  The multifidelity series then runs the engine's plain
+        allocation in its one call and pairs the first n realisations (the numbers
+        of an n-realisation call, the noise being per realisation), so that a fall
+        back to plain sampling reruns nothing
+        (:func:`validation.checks.agreement.multifidelity_series`).
     integrator : the time stepper, in MuJoCo's names ("Euler", "RK4",
         "implicit", "implicitfast") for MuJoCo-family engines, else a
         descriptive name ("SAP", "generalized-alpha", "semi-implicit Euler",
@@ -89,6 +97,7 @@ class Capabilities:
     family: str = ""
     trajectory_tolerance: float = 1e-2
     packs_points: bool = False
+    batch: bool = False
     integrator: str = "Euler"
     rod: str = "soft"
     twin: str | None = None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -277,3 +279,73 @@ def test_pairs_over_another_duration_keep_their_coverage(k):
 def test_pairs_that_do_not_fit_name_the_parameter(x_paired, match):
     with pytest.raises(ValueError, match=match):
         mf.mfmc_estimate(np.zeros(3), np.arange(16.0), alpha=1.0, x_paired=x_paired)
+
+
+def _as_batch(monkeypatch, batch: bool, real) -> list[int]:
+    """MuJoCo's engine declared ``batch`` (or not); returns the realisations of each of
+    its series calls (``real``, the unpatched ``run_full``), appended as they happen."""
+    from dataclasses import replace
+
+    from validation.checks import agreement
+
+    eng = agreement.rigid_engine("mujoco")
+    monkeypatch.setattr(eng, "capabilities", replace(eng.capabilities, batch=batch))
+    calls: list[int] = []
+
+    def counted(scenario, target, **kw):
+        calls.append(scenario.realizations)
+        return real(scenario, target, **kw)
+
+    monkeypatch.setattr(agreement, "run_full", counted)
+    return calls
+
+
+@pytest.mark.parametrize("uncorrelated", [False, True], ids=["multifidelity", "fall-back"])
+def test_a_batch_engine_runs_its_plain_allocation_once_with_the_same_numbers(
+    monkeypatch, uncorrelated
+):
+    """A ``batch`` engine (a call costs the same for 3 worlds as for 16) runs the plain
+    allocation once; its first n give the multifidelity checks the numbers of n alone,
+    and a fall back to plain sampling reuses the call instead of running the engine again."""
+    from dataclasses import replace
+
+    from validation.checks import agreement
+
+    if uncorrelated:  # the control shares no noise with the engine: plain sampling
+        real_twin = agreement.run_twin
+        monkeypatch.setattr(agreement, "run_twin", lambda scn, target, **kw: real_twin(
+            replace(scn, seed=scn.seed + 1), target, **kw))  # fmt: skip
+    profile = _tiny_profile()
+    got, real = {}, agreement.run_full
+    for batch in (False, True):
+        calls = _as_batch(monkeypatch, batch, real)
+        checks, data = agreement.series_model_checks(
+            *_series_args(profile)[0], profile, **_series_args(profile)[1]
+        )
+        got[batch] = (checks, data, calls)
+    n, n_plain = profile.mf_engine_realizations, profile.series_realizations
+    assert got[False][2] == ([n, n_plain] if uncorrelated else [n])
+    assert got[True][2] == [n_plain]  # one call, whatever the outcome
+    for a, b in zip(got[False][0], got[True][0], strict=True):  # NaN equal to NaN
+        assert (a.name, a.status) == (b.name, b.status)
+        assert json.dumps(a.values, sort_keys=True, default=str) == json.dumps(
+            b.values, sort_keys=True, default=str
+        )
+        if uncorrelated:  # no measured cost in the plain checks' details
+            assert a.details == b.details
+    np.testing.assert_array_equal(got[False][1]["full"]["balancing_error"],
+                                  got[True][1]["full"]["balancing_error"])  # fmt: skip
+    assert ("multifidelity not used: " in got[True][0][0].details) == uncorrelated
+
+
+def test_head_cuts_the_per_realisation_attributes():
+    from cipcore.schema import Trajectory
+    from validation.checks.agreement import head
+
+    tr = Trajectory(time=np.arange(3.0), data={"balancing_error": np.zeros((4, 3, 1))},
+                    attrs={"max_abs_angle": [0.1, 0.2, 0.3, 0.4], "seed": 7,
+                           "left_small_angle": [False, False, True, True]})  # fmt: skip
+    h = head(tr, 2)
+    assert h.data["balancing_error"].shape == (2, 3, 1)
+    assert h.attrs["max_abs_angle"] == [0.1, 0.2] and h.attrs["left_small_angle"] == [False] * 2
+    assert h.attrs["seed"] == 7 and tr.attrs["max_abs_angle"] == [0.1, 0.2, 0.3, 0.4]

@@ -312,7 +312,12 @@ class NewtonRollout(ModelRollout):
 ENGINE = RigidBodyEngine(
     name="newton",
     capabilities=semi_implicit_rigid(
-        "Newton", "Newton Featherstone", TRAJECTORY_TOLERANCE, precision="float32", kernels="warp"
+        "Newton",
+        "Newton Featherstone",
+        TRAJECTORY_TOLERANCE,
+        precision="float32",
+        kernels="warp",
+        batch=True,
     ),
     backend=lambda: NewtonRollout,
     requires=("newton", "warp"),

@@ -144,6 +144,7 @@ def _capabilities() -> Capabilities:
         kernels="warp",
         family="MuJoCo (Warp)",
         packs_points=True,
+        batch=True,
         twin="the model file's terms, soft rod and Euler in float64; the engine computes in "
         "float32, so its tolerance is its float32 floor",
     )

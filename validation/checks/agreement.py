@@ -650,14 +650,15 @@ def series_model_checks(
 
     threads, nearest, precision = options["threads"], options["nearest"], options["precision"]
     model, beta, amplitude = scenario.model, scenario.params.beta, scenario.amplitude
-    fallback = ""
-    if profile.mf_engine_realizations:  # a str: the twin does not pay, plain sampling
+    fallback, ran = "", None
+    if profile.mf_engine_realizations:  # PlainFallback: the twin does not pay, plain sampling
         got = multifidelity_series(scenario, target, profile, **options)
-        if not isinstance(got, str):
+        if not isinstance(got, PlainFallback):
             return got
-        fallback = f"; {got}"
+        fallback, ran = f"; {got.why}", got.full
     run = {"decimate": profile.decimate, "threads": threads}
-    full, red = run_pair(scenario, target, **run)
+    full = ran if ran is not None else run_full(scenario, target, **run)
+    red = run_reduced(scenario, **run)
     twin_target, env_integrator = twin_of(model, target, nearest)
     twin = run_twin(scenario, twin_target, **run)
     rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
@@ -712,10 +713,18 @@ MF_SLOPE_RULE = (
 )
 
 
+#: a trajectory's attributes with one entry per realisation (:func:`cip.simulate`'s)
+PER_REALISATION_ATTRS = ("max_abs_angle", "left_small_angle")
+
+
 def head(tr: Trajectory, n: int) -> Trajectory:
-    """The first ``n`` realisations of ``tr``: the same noise streams as an n-realisation run."""
-    return Trajectory(time=tr.time, data={k: v[:n] for k, v in tr.data.items()},
-                      attrs=dict(tr.attrs))  # fmt: skip
+    """The first ``n`` realisations of ``tr``: the same noise streams as an n-realisation run
+    (its per-realisation attributes, :data:`PER_REALISATION_ATTRS`, cut to them too)."""
+    attrs = dict(tr.attrs)
+    for key in PER_REALISATION_ATTRS:
+        if isinstance(attrs.get(key), list):
+            attrs[key] = attrs[key][:n]
+    return Trajectory(time=tr.time, data={k: v[:n] for k, v in tr.data.items()}, attrs=attrs)
 
 
 def _known(x: np.ndarray) -> float:
@@ -888,18 +897,31 @@ def compare_series_mf(
     return checks, max(ratios)
 
 
+@dataclass(frozen=True)
+class PlainFallback:
+    """:func:`multifidelity_series` declined: ``why``, a line for the plain checks' details,
+    and ``full``, the engine's plain allocation where it already ran (a ``batch`` engine,
+    :class:`cipcore.engine.Capabilities`), else None."""
+
+    why: str
+    full: Trajectory | None = None
+
+
 def multifidelity_series(
     scenario: Scenario, target: EngineTarget, profile: Profile, **options: Unpack[SeriesOptions]
-) -> tuple[list[Check], dict] | str:
+) -> tuple[list[Check], dict] | PlainFallback:
     """One model's series checks with the engine on ``profile.mf_engine_realizations``.
 
     ``scenario``, ``target``, ``options``: :func:`series_model_checks`' (the scenario's
     realisations = the plain allocation, series_realizations).  The twin, the reduced model and
     the envelope twin run ``profile.mf_twin_realizations`` under the same noise (the
-    first n are the engine's).  Returns why, a line for the plain checks' details (the
-    caller samples plainly), when at the correlations measured some check's interval
-    would be wider than plain sampling's (the engine outside the twin's regime); else
-    (checks, the stage's data).
+    first n are the engine's).  Returns a :class:`PlainFallback` (the caller samples
+    plainly) when at the correlations measured some check's interval would be wider than
+    plain sampling's (the engine outside the twin's regime); else (checks, the stage's
+    data).  A ``batch`` engine runs the plain allocation in its one call and its first n
+    are paired (the same numbers as n alone); a fall back then reuses that call.  Where
+    a realisation beyond the first n stopped that call early (a divergence), the n run
+    alone, as for any engine.
     """
     import time
 
@@ -917,7 +939,13 @@ def multifidelity_series(
     run = {"decimate": profile.decimate, "threads": threads}
     twin_target, stepper = twin_of(model, target, nearest)
     t0 = time.perf_counter()
-    full = run_full(replace(scenario, realizations=n), target, **run)
+    ran = None  # the plain allocation, where the engine ran it (a batch engine)
+    if rigid_engine(target.engine).capabilities.batch:
+        ran = run_full(scenario, target, **run)
+    if ran is not None and ran.attrs.get("diverged") is None:
+        full = head(ran, n)
+    else:
+        full = run_full(replace(scenario, realizations=n), target, **run)
     t1 = time.perf_counter()
     red = run_reduced(cheap, **run)
     twin = run_twin(cheap, twin_target, **run)
@@ -939,9 +967,10 @@ def multifidelity_series(
     )
     checks, ratio = compare_series_mf(model, ms, profile, n_plain, details)
     if not ratio <= 1.0:
-        return (f"multifidelity not used: with the engine on {n} and the twin on {m} "
-                f"realisations an interval would be {ratio:.3g} times plain sampling's "
-                f"(log10 RMS rho {rho:.6g}), so the engine ran {n_plain}")  # fmt: skip
+        return PlainFallback(f"multifidelity not used: with the engine on {n} and the twin "
+                             f"on {m} realisations an interval would be {ratio:.3g} times "
+                             f"plain sampling's (log10 RMS rho {rho:.6g}), so the engine "
+                             f"ran {n_plain}", ran)  # fmt: skip
     own = compare_series(model, ms["full"], ms["reduced_n"], "", details, ms["twin_n"])
     own = [c for c in own if c.name.startswith("twin.")]
     checks += [not_applicable(c) for c in own] if nearest else own
