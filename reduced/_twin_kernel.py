@@ -274,21 +274,27 @@ def _benettin(
 
 def _kernels_for(scheme: int) -> tuple:
     """(advance_twin, benettin_twin) compiled for one scheme (:data:`KERNELS`): the
-    arguments of :func:`_advance` and :func:`_benettin` less ``scheme``."""
+    arguments of :func:`_advance` and :func:`_benettin` less ``scheme``.  Each kernel has a
+    name of its own (``advance_twin_scheme<k>``), so that numba caches every scheme in
+    files of its own: closures sharing a name share one cache index, which two
+    processes compiling different schemes at once could leave pointing at the wrong
+    scheme's code."""
     A = np.ndarray
 
-    @njit(cache=True, nogil=True)
     def advance_twin(xi: A, state: A, hist: A, pos: int, coef: A, minv: A, mstep: A, n0: int,
                      every: int, rec: A) -> int:  # fmt: skip
         return _advance(xi, state, hist, pos, coef, minv, mstep, scheme, n0, every, rec)
 
-    @njit(cache=True, nogil=True)
     def benettin_twin(xi: A, state: A, hist: A, rates: A, coef: A, minv: A, mstep: A, n0: int,
                       transient_steps: int, epsilon: float, logsum: A) -> int:  # fmt: skip
         return _benettin(xi, state, hist, rates, coef, minv, mstep, scheme, n0, transient_steps,
                          epsilon, logsum)  # fmt: skip
 
-    return advance_twin, benettin_twin
+    kernels = []
+    for fn in (advance_twin, benettin_twin):
+        fn.__qualname__ = fn.__name__ = f"{fn.__name__}_scheme{scheme}"
+        kernels.append(njit(cache=True, nogil=True)(fn))
+    return tuple(kernels)
 
 
 #: The twin's kernels per scheme code (``reduced.twin.TWIN_SCHEMES``): ``KERNELS[scheme]``

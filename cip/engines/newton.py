@@ -317,7 +317,7 @@ ENGINE = RigidBodyEngine(
         TRAJECTORY_TOLERANCE,
         precision="float32",
         kernels="warp",
-        batch=True,
+        batch=True,  # 0.39 / 0.40 / 0.50 ms a step for 1 / 8 / 64 worlds (module docstring)
     ),
     backend=lambda: NewtonRollout,
     requires=("newton", "warp"),

@@ -713,8 +713,9 @@ MF_SLOPE_RULE = (
 )
 
 
-#: a trajectory's attributes with one entry per realisation (:func:`cip.simulate`'s)
-PER_REALISATION_ATTRS = ("max_abs_angle", "left_small_angle")
+#: a trajectory's attributes with one entry per realisation (the engines' and the reduced
+#: model's final state, :func:`reduced.simulate.final_state`)
+PER_REALISATION_ATTRS = ("max_abs_angle", "left_small_angle", "final_state")
 
 
 def head(tr: Trajectory, n: int) -> Trajectory:
@@ -942,14 +943,18 @@ def multifidelity_series(
     ran = None  # the plain allocation, where the engine ran it (a batch engine)
     if rigid_engine(target.engine).capabilities.batch:
         ran = run_full(scenario, target, **run)
-    if ran is not None and ran.attrs.get("diverged") is None:
+    paired_from_ran = ran is not None and ran.attrs.get("diverged") is None
+    if paired_from_ran:
         full = head(ran, n)
     else:
         full = run_full(replace(scenario, realizations=n), target, **run)
     t1 = time.perf_counter()
     red = run_reduced(cheap, **run)
     twin = run_twin(cheap, twin_target, **run)
-    w = (t1 - t0) / n / max((time.perf_counter() - t1) / m, 1e-9)
+    # the engine's cost per realisation it ran, against the cheap models' per realisation
+    engine_runs = (n_plain if ran is not None else 0) + (0 if paired_from_ran else n)
+    w = (t1 - t0) / engine_runs / max((time.perf_counter() - t1) / m, 1e-9)
+    batch = f" (a batch engine: the first {n} of one call of {n_plain})" if paired_from_ran else ""
     rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
     env = run_envelope_twin(cheap, recording=rec, threads=threads, integrator=stepper)
     runs = {"full": full, "reduced": red, "twin": twin, "envelope": env,
@@ -959,7 +964,8 @@ def multifidelity_series(
     rho = abs(mfe.control_variate(y, ms["twin_n"].log_rms - ms["reduced_n"].log_rms)[1])
     details = (
         f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
-        f"multifidelity: engine {n} x {duration:g} s, twin and reduced {m} x {duration:g} s "
+        f"multifidelity: engine {n} x {duration:g} s{batch}, twin and reduced {m} x "
+        f"{duration:g} s "
         f"(same noise, nested; plain sampling: {n_plain} x {duration:g} s), seed {seed}, "
         f"largest |theta| {float(np.max(full.attrs['max_abs_angle'])):.2g} rad, cost ratio "
         f"engine : twin + reduced w = {w:.3g} (measured), MFMC-optimal m/n for the RMS's "

@@ -412,14 +412,15 @@ def forget_handled_keyboard_interrupt() -> None:
     before each such run (``run_eval_code_obj``).  Called by the console script after
     :func:`validation.cli.main.main` returned, i.e. with no KeyboardInterrupt in flight.
     """
-    import ctypes
-
     try:
-        run = ctypes.pythonapi.PyRun_String
-    except (AttributeError, OSError):  # not CPython: no such flag
+        import ctypes
+
+        # a prototype of our own: the shared ctypes.pythonapi.PyRun_String keeps its types
+        proto = ctypes.PYFUNCTYPE(ctypes.py_object, ctypes.c_char_p, ctypes.c_int,
+                                  ctypes.py_object, ctypes.py_object)  # fmt: skip
+        run = proto(("PyRun_String", ctypes.pythonapi))
+    except (ImportError, AttributeError, OSError):  # no ctypes, or not CPython: no such flag
         return
-    run.restype = ctypes.py_object
-    run.argtypes = [ctypes.c_char_p, ctypes.c_int, ctypes.py_object, ctypes.py_object]
     py_eval_input = 258
     run(b"None", py_eval_input, {}, {})
 
