@@ -58,10 +58,8 @@ class Capabilities:
         together, so that a call costs about as much for 16 realisations as for 3
         (warp's worlds: MuJoCo Warp, Newton; each step is a set of kernel launches
         whatever the worlds).  The multifidelity series then runs the engine's plain
-        allocation in its one call and pairs the first n realisations (the numbers
-        of an n-realisation call, the noise being per realisation), so that a fall
-        back to plain sampling reruns nothing
-        (:func:`validation.checks.agreement.multifidelity_series`).
+        allocation in its one call and pairs all of it, and a fall back to plain
+        sampling reruns nothing (:func:`validation.checks.agreement.multifidelity_series`).
     integrator : the time stepper, in MuJoCo's names ("Euler", "RK4",
         "implicit", "implicitfast") for MuJoCo-family engines, else a
         descriptive name ("SAP", "generalized-alpha", "semi-implicit Euler",

@@ -919,10 +919,11 @@ def multifidelity_series(
     first n are the engine's).  Returns a :class:`PlainFallback` (the caller samples
     plainly) when at the correlations measured some check's interval would be wider than
     plain sampling's (the engine outside the twin's regime); else (checks, the stage's
-    data).  A ``batch`` engine runs the plain allocation in its one call and its first n
-    are paired (the same numbers as n alone); a fall back then reuses that call.  Where
-    a realisation beyond the first n stopped that call early (a divergence), the n run
-    alone, as for any engine.
+    data).  A ``batch`` engine runs the plain allocation in its one call, for about the
+    cost of n, and every realisation of it is paired (n = the plain allocation: the
+    estimator's variance only falls with n); a fall back then reuses that call.  Where
+    a realisation stopped that call early (a divergence), the profile's n run alone,
+    as for any engine.
     """
     import time
 
@@ -944,8 +945,8 @@ def multifidelity_series(
     if rigid_engine(target.engine).capabilities.batch:
         ran = run_full(scenario, target, **run)
     paired_from_ran = ran is not None and ran.attrs.get("diverged") is None
-    if paired_from_ran:
-        full = head(ran, n)
+    if paired_from_ran:  # all of the call paired
+        n, full = n_plain, ran
     else:
         full = run_full(replace(scenario, realizations=n), target, **run)
     t1 = time.perf_counter()
@@ -954,7 +955,7 @@ def multifidelity_series(
     # the engine's cost per realisation it ran, against the cheap models' per realisation
     engine_runs = (n_plain if ran is not None else 0) + (0 if paired_from_ran else n)
     w = (t1 - t0) / engine_runs / max((time.perf_counter() - t1) / m, 1e-9)
-    batch = f" (a batch engine: the first {n} of one call of {n_plain})" if paired_from_ran else ""
+    batch = " (a batch engine: every realisation of its one call paired)" if paired_from_ran else ""
     rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
     env = run_envelope_twin(cheap, recording=rec, threads=threads, integrator=stepper)
     runs = {"full": full, "reduced": red, "twin": twin, "envelope": env,
