@@ -220,18 +220,3 @@ def test_an_engine_duration_out_of_range_is_one_line() -> None:
     with pytest.raises(ParameterError, match=r"mf_engine_duration must be 0 or in \[0.112, "
                                              r"lyapunov_duration = 8\] s, got 9"):  # fmt: skip
         lyapunov_checks(_profile(mf_engine_duration=9.0), 1)
-
-
-def test_a_batch_engine_pairs_its_whole_plain_allocation(monkeypatch) -> None:
-    """A ``batch`` engine runs lyapunov_realizations in its one call (about the cost of 3)
-    and pairs all of them; the estimate is still the twin's mean to the pairing's floor."""
-    from validation.checks import agreement
-
-    eng = agreement.rigid_engine("mujoco")
-    monkeypatch.setattr(eng, "capabilities", replace(eng.capabilities, batch=True))
-    (check,), data = lyapunov_checks(_profile(), 1)
-    v = check.values["full"]
-    assert (v["n"], v["n_twin"]) == (4, 8)
-    assert abs(v["value"] - v["twin"]["value"]) < 1e-8 and check.status == "pass"
-    assert "a batch engine: its plain allocation, all paired" in check.details
-    assert data["lyapunov"][0]["full"]["n_realizations"] == 4

@@ -160,9 +160,7 @@ def lambda1_multifidelity(
     plain allocation (lyapunov_realizations each, their own seeds); the engine runs the n
     realisations of every gain in one call (a :class:`cipcore.noise.StackedNoise` with a
     gain per realisation: each realisation's exponent is the one it has alone), so a
-    batched engine steps once for all gains and the threads share G x n realisations.  A
-    ``batch`` engine (:class:`cipcore.engine.Capabilities`) runs its plain allocation,
-    n = lyapunov_realizations, in that call for about the cost of n, all of it paired.
+    batched engine steps once for all gains and the threads share G x n realisations.
     The engine and the twin's n pairs run :func:`engine_duration` (``mf_engine_duration``,
     shorter than ``lyapunov_duration``): the paired difference engine - twin is the same
     over 50 s as over 200 s to 1e-4 1/s while the check's interval is about 1e-2
@@ -189,9 +187,6 @@ def lambda1_multifidelity(
     if not mfe.MIN_PAIRED <= n < n_plain:
         raise ParameterError(f"mf_engine_realizations must be 0 or in [{mfe.MIN_PAIRED}, "
                              f"lyapunov_realizations = {n_plain}), got {n}")  # fmt: skip
-    # a batch engine steps its whole plain allocation for about the cost of n: all paired
-    batched = rigid_engine(engine).capabilities.batch
-    n = n_plain if batched else n
     short = engine_duration(profile, first.params)
     execution = Execution(threads=body["threads"])
     twin = TwinParams(**rigid_engine(engine).twin_terms(mapping))
@@ -234,8 +229,7 @@ def lambda1_multifidelity(
             f"multifidelity: engine {n} x {short:g} s, its {twin.integrator} twin and the "
             f"reduced model {m} x {duration:g} s (same noise, nested; plain sampling: {n_plain} "
             f"x {duration:g} s; the engine ran the {len(scenarios)} gains' realisations in one "
-            f"batch{same}{'; a batch engine: its plain allocation, all paired' if batched else ''}"
-            f"), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, 1 - rho "
+            f"batch{same}), seed {seed}, Benettin deviation {body['epsilon']:g} m{note}, 1 - rho "
             f"{1 - est.rho:.2g}, half-width {est.half_width / plain:.3g} x plain sampling's, "
             f"cost ratio engine : twin + reduced w = {w:.3g} (measured)"
         )
