@@ -155,7 +155,7 @@ def lyapunov_full(
     return LyapunovResult(
         lambda1=mean, ci95=ci, per_realization=per, duration=duration, transient=transient,
         model=model, params={**params.as_dict(), "physical": physical.as_dict(),
-                             **({} if betas is None else {"betas": np.ravel(betas).tolist()})},
+                             **({} if gains is None else {"betas": gains.tolist()})},
         seed=seed,
     )  # fmt: skip
 

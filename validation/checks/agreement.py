@@ -946,14 +946,14 @@ def multifidelity_series(
         ran = run_full(scenario, target, **run)
     paired_from_ran = ran is not None and ran.attrs.get("diverged") is None
     if paired_from_ran:  # all of the call paired
-        n, full = n_plain, ran
-    else:
+        n, full, engine_runs = n_plain, ran, n_plain
+    else:  # the profile's n alone (also after a batch call a divergence stopped early)
         full = run_full(replace(scenario, realizations=n), target, **run)
+        engine_runs = n + (n_plain if ran is not None else 0)
     t1 = time.perf_counter()
     red = run_reduced(cheap, **run)
     twin = run_twin(cheap, twin_target, **run)
     # the engine's cost per realisation it ran, against the cheap models' per realisation
-    engine_runs = (n_plain if ran is not None else 0) + (0 if paired_from_ran else n)
     w = (t1 - t0) / engine_runs / max((time.perf_counter() - t1) / m, 1e-9)
     batch = " (a batch engine: every realisation of its one call paired)" if paired_from_ran else ""
     rec = Recording(decimate=profile.decimate, fields=SERIES_FIELDS)
