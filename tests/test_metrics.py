@@ -134,15 +134,22 @@ def test_bootstrap_broken_lines_fitted_at_once_equal_one_at_a_time():
 
 
 def test_stcc_and_its_bartlett_level_do_not_depend_on_the_number_of_threads(monkeypatch):
-    """Lags (STCC) and realisations (Bartlett) are spread over threads: same numbers for 1 or 4."""
+    """Series and lag ranges (STCC) and realisations (Bartlett) are spread over threads: the
+    same numbers on 1, 2 or 7 threads, whether a thread takes whole series or part of one
+    series' lags (3 series on 7 threads: each series' lags in 3 ranges)."""
     import validation.checks.metrics as m
 
     rng = np.random.default_rng(8)
     x, y = rng.standard_normal((2, 3, 4000)).cumsum(-1)
+    monkeypatch.setattr(m, "_STCC_THREADED", 100)  # a thread per 100 samples, up to the cores
     got = []
-    for n in (1, 4):
+    for n in (1, 2, 7):
         monkeypatch.setattr(m.os, "cpu_count", lambda n=n: n)
         t, _, r = m.stcc(x, y, 0.005, 2.0, 0.1, 0.25)
         got.append((r, m.effective_samples(x, y, 0.005, t, 2.0)))
-    np.testing.assert_array_equal(got[0][0], got[1][0])
-    np.testing.assert_array_equal(got[0][1], got[1][1])
+    for other in got[1:]:
+        np.testing.assert_array_equal(got[0][0], other[0])
+        np.testing.assert_array_equal(got[0][1], other[1])
+    # 1-D series: one series' lags split across the threads
+    r1 = m.stcc(x[0], y[0], 0.005, 2.0, 0.1, 0.25)[2]
+    np.testing.assert_array_equal(r1, got[0][0][0])

@@ -15,6 +15,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from validation.checks._stcc_kernel import stcc_lags
+
 
 # ---------------------------------------------------------------- spectra
 def power_spectrum(
@@ -335,53 +337,11 @@ def density_ratios_near_zero(
 
 
 # ----------------------------------------------------------------- STCC
-#: Largest number of block values gathered at once when combining windows: bounds the
-#: memory and keeps the gathered blocks in cache (measured: the STCC of 16 x 600 s with
-#: 10 s windows in 0.53 s instead of 0.90 s with 4e6; the same bits)
-_CHUNK_ELEMENTS = 250_000
-
-
-def _block_stats(z: np.ndarray, nblocks: int, g: int) -> tuple[np.ndarray, np.ndarray]:
-    """Means (..., nblocks) and centred samples (..., nblocks, g) of consecutive blocks."""
-    b = z[..., : nblocks * g].reshape(*z.shape[:-1], nblocks, g)
-    m = b.mean(axis=-1)
-    return m, b - m[..., None]
-
-
-def _window_blocks(a: np.ndarray, k: int, first: np.ndarray) -> np.ndarray:
-    """(..., windows, k): the k consecutive block values of each window."""
-    v = np.lib.stride_tricks.sliding_window_view(a, k, axis=-1)
-    return v[..., first, :]
-
-
-def _window_comoment(
-    mx: np.ndarray, my: np.ndarray, cb: np.ndarray, k: int, first: np.ndarray, g: int
-) -> np.ndarray:
-    """Comoment sum_s (x - m_x)(y - m_y) over windows of k blocks of g samples.
-
-    Exact decomposition into within-block and between-block parts (the
-    parallel formula of Chan, Golub & LeVeque 1983 for equal blocks)::
-
-        C_W = sum_b C_b + g sum_b (m_x,b - M_x)(m_y,b - M_y),   M = mean_b m_b,
-
-    every sum taken directly over its window (no differences of running sums),
-    so the result keeps full relative precision whatever the dynamic range.
-    """
-    out = np.empty((*mx.shape[:-1], first.size))
-    per = max(1, _CHUNK_ELEMENTS // (k * max(1, mx[..., 0].size)))  # bound the memory
-    for a in range(0, first.size, per):
-        sel = first[a : a + per]
-        bx = _window_blocks(mx, k, sel)
-        by = _window_blocks(my, k, sel)
-        bx = bx - bx.mean(axis=-1, keepdims=True)
-        by = by - by.mean(axis=-1, keepdims=True)
-        out[..., a : a + per] = _window_blocks(cb, k, sel).sum(axis=-1) + g * (bx * by).sum(axis=-1)
-    return out
-
-
-#: samples (all series of a batch together) from which :func:`stcc` spreads its lags
-#: over threads
-_STCC_THREADED = 100_000
+#: samples (all series of a batch together) per thread of :func:`stcc`: a batch below it
+#: runs in the calling thread, where starting a pool costs more than the loop (7 December,
+#: 2 cores beside another job: 6 x 20 s 2.1 ms in one thread, 4.4 ms on two; 3 x 100 s
+#: 5.7 against 7.5 ms; 16 x 100 s 29.9 against 28.9 ms; 2 x 600 s 25.1 against 21.7 ms)
+_STCC_THREADED = 200_000
 
 
 def _each(task, n: int, threaded: bool = True) -> None:
@@ -415,7 +375,8 @@ def stcc(
     Numerics: the series is cut into blocks of g = gcd(window, stride) samples;
     each block's mean and centred sums are formed directly, and a window's
     moments are combined from its blocks by the exact within/between
-    decomposition (Chan, Golub & LeVeque 1983).  Nothing is a difference of
+    decomposition (Chan, Golub & LeVeque 1983), in a compiled loop
+    (:mod:`validation.checks._stcc_kernel`).  Nothing is a difference of
     whole-series running sums, so R equals a direct per-window computation to
     rounding (about 1e-14) for signals spanning any dynamic range (tested over
     1e-12 to 1e9).  Cost O(samples x lags + windows x lags x window/g).
@@ -441,31 +402,25 @@ def stcc(
         )
     starts = np.arange(0, n - w - lmax + 1, step)
     g = math.gcd(w, step)
-    k = w // g
-    first = starts // g
-    nblocks = int(first[-1]) + k
-    mx, cx = _block_stats(x, nblocks, g)
-    my0, cy0 = _block_stats(y, nblocks, g)
-    sxx = _window_comoment(mx, mx, (cx * cx).sum(axis=-1), k, first, g)
-    syy = _window_comoment(my0, my0, (cy0 * cy0).sum(axis=-1), k, first, g)
-    norm = np.sqrt(sxx * syy)
-    out = np.empty((*x.shape[:-1], starts.size, lmax + 1))
+    first = (starts // g).astype(np.int64)
+    xf = np.ascontiguousarray(x.reshape(-1, n))
+    yf = np.ascontiguousarray(y.reshape(-1, n))
+    rows = xf.shape[0]
+    out = np.empty((rows, starts.size, lmax + 1))
+    # tasks of (series, lag range) across threads (the loop releases the GIL): a series a
+    # task, or, with fewer series than cores, each series' lags in one range per core.
+    # Each lag is computed alone, so R does not depend on the threads or the split.  A
+    # short batch (below _STCC_THREADED samples in all) runs in this thread
+    threads = min(os.cpu_count() or 1, 1 + (x.size - 1) // _STCC_THREADED)
+    parts = 1 if rows >= threads else -(-threads // rows)
+    edges = np.linspace(0, lmax + 1, parts + 1).round().astype(int)
 
-    def lagged(lag: int) -> None:
-        # every lagged window ends at starts + w + lag <= n - lmax + lag <= n
-        my, cy = (my0, cy0) if lag == 0 else _block_stats(y[..., lag:], nblocks, g)
-        sxy = _window_comoment(mx, my, (cx * cy).sum(axis=-1), k, first, g)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out[..., lag] = sxy / norm
+    def lags(i: int) -> None:
+        r, p = divmod(i, parts)
+        stcc_lags(xf[r], yf[r], first, g, w // g, edges[p], edges[p + 1], out[r])
 
-    # one lag per task across threads (numpy releases the GIL); each lag is computed
-    # alone, so R does not depend on the number of threads.  A short series (below
-    # _STCC_THREADED samples in all) runs its lags in this thread: there, starting a
-    # pool and handing out lags costs more than the lags (one 5 s window and 0.5 s of
-    # lag at 50 Hz, 26 lags: 6.6 ms threaded, 2.5 ms in one thread; threads win from
-    # about 100 000 samples)
-    _each(lagged, lmax + 1, threaded=x.size >= _STCC_THREADED)
-    return starts * dt, np.arange(lmax + 1) * dt, out
+    _each(lags, rows * parts, threaded=threads > 1)
+    return starts * dt, np.arange(lmax + 1) * dt, out.reshape(*x.shape[:-1], *out.shape[1:])
 
 
 @dataclass
