@@ -18,11 +18,11 @@ What the loop changes against the numpy expression it replaced (7 December): the
 of the additions inside a block (sequential here, numpy's pairwise there), so R moves
 at rounding level (at most 1.0e-15 over 16 x 600 s of correlated series sampled every
 5 ms, windows of 2.5, 5 and 10 s; every first dominant peak the same; the quick run's
-1286 baseline numbers reproduced exactly), and its cost: 1.3-1.45 s -> 0.13-0.23 s
-for those series on 2 threads.  The lags share the blocks of x and each window's centred block means of x,
-which numpy formed again for every lag.  Each lag is computed alone, so the result of a
-lag does not depend on the range of lags a call covers (the caller splits lags across
-threads when a batch has fewer series than cores).
+1286 baseline numbers reproduced exactly), and its cost (1.3-1.45 s -> 0.13-0.23 s for
+those series on 2 threads): the lags share the blocks of x and each window's centred
+block means of x, which numpy formed again for every lag.  Each lag is computed alone,
+so the result of a lag does not depend on the range of lags a call covers (the caller
+splits lags across threads when a batch has fewer series than cores).
 """
 
 from __future__ import annotations

@@ -471,13 +471,14 @@ def dominant_peaks(
     if sig.ndim:
         sig = sig[..., None]
     with np.errstate(invalid="ignore"):
-        rmax = np.nanmax(np.where(np.isnan(r), -np.inf, r), axis=-1, keepdims=True)
+        ranked = np.where(np.isnan(r), -np.inf, r)  # a NaN lag never the largest
+        rmax = ranked.max(axis=-1, keepdims=True)
         peak = np.zeros(r.shape, dtype=bool)
         peak[..., 1:-1] = (r[..., 1:-1] > r[..., :-2]) & (r[..., 1:-1] >= r[..., 2:])
         ok = peak & (r >= dominance * rmax) & (r > sig) & (rmax > 0)
     has = ok.any(axis=-1)
     first = np.argmax(ok, axis=-1)
-    arg = np.argmax(np.where(np.isnan(r), -np.inf, r), axis=-1)
+    arg = np.argmax(ranked, axis=-1)
     finite = np.isfinite(r).all(axis=-1)
     boundary = finite & ((arg == 0) | (arg == r.shape[-1] - 1))
     return DominantPeaks(
