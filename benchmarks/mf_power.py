@@ -141,9 +141,19 @@ def fault_injected(kind: str, size: float, stage: str) -> Iterator[None]:
         del RigidBodyEngine.lyapunov  # the inherited method again
 
 
-def fell_back(checks: list) -> bool:
-    """Whether a multifidelity run sampled plainly (no check carries its numbers)."""
-    return not any("n_twin" in json.dumps(c["values"]) for c in checks)
+def fell_back(checks: list, model: str | None = None) -> bool:
+    """Whether a multifidelity run sampled plainly (no check carries its numbers), for the
+    checks of ``model`` alone (a name part ``single`` / ``coupled``) when given."""
+    mine = [c for c in checks if model is None or model in c["name"].split(".")]
+    return not any("n_twin" in json.dumps(c["values"]) for c in mine)
+
+
+def pairs(checks: list, model: str) -> list[int]:
+    """The engine realisations paired (``values["n"]``) in each multifidelity check of
+    ``model`` (a batch engine pairs every realisation of its one call)."""
+    return [int(c["values"]["n"]) for c in checks
+            if model in c["name"].split(".") and "n_twin" in c["values"]
+            and "n" in c["values"]]  # fmt: skip
 
 
 def summarise(rows: dict[str, list[dict]]) -> list[dict]:
@@ -211,8 +221,16 @@ def print_table(base, a, rows: dict[str, list[dict]]) -> list[dict]:
         rs = rows[label]
         print(f"{label:5s}: engine steps per seed {rs[0]['engine_steps']}, per seed median "
               f"{np.median([r['wall_s'] for r in rs]):.1f} s wall, "
-              f"{np.median([r['cpu_s'] for r in rs]):.1f} s CPU, fell back "
-              f"{sum(r['fell_back'] for r in rs) if label == 'mf' else '-'}")  # fmt: skip
+              f"{np.median([r['cpu_s'] for r in rs]):.1f} s CPU", end="")  # fmt: skip
+        if label == "plain":
+            print()
+            continue
+        models = ("single", "coupled")
+        back = ", ".join(f"{m} {sum(fell_back(r['checks'], m) for r in rs)}" for m in models)
+        n = {m: sorted({k for r in rs for k in pairs(r["checks"], m)}) for m in models}
+        print(f"; fell back to plain sampling at (of {len(rs)} seeds) {back}; engine "
+              f"realisations paired where not: "
+              + ", ".join(f"{m} {n[m] or '-'}" for m in models))  # fmt: skip
     return table
 
 
