@@ -9,7 +9,7 @@
 * :mod:`~validation.checks.rod`: the coupling rod (stretch, rigidity);
 * :mod:`~validation.checks.divergence`: runs that leave the small-angle regime or blow up;
 * :mod:`~validation.checks.metrics`: balancing error, RMS, spectra, STCC (one function per
-  estimator);
+  estimator; the STCC's compiled loop in ``_stcc_kernel``);
 * :mod:`~validation.checks.stats`: intervals, tolerances and verdict rules;
 * :mod:`~validation.checks.multifidelity`: the engine's agreement estimated with its exact
   twin as control variate (two-model MFMC: estimate, interval, allocation).
