@@ -15,8 +15,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from validation.checks._stcc_kernel import stcc_lags
-
 
 # ---------------------------------------------------------------- spectra
 def power_spectrum(
@@ -390,6 +388,8 @@ def stcc(
     t : (windows,) window starts in s;  lags : (lags,) in s;
     R : (..., windows, lags); NaN where a window has zero deviation.
     """
+    from validation.checks._stcc_kernel import stcc_lags  # numba: imported when first used
+
     x = np.asarray(x, dtype=float)
     y = np.asarray(y, dtype=float)
     n = x.shape[-1]
