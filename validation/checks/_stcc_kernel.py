@@ -45,8 +45,9 @@ def stcc_lags(
 ) -> None:
     """R(x, y; tau) of one series pair at lags ``lag0`` .. ``lag1 - 1`` (samples).
 
-    One function without helpers: numba compiles it in 0.54 s against 0.83 s for the
-    same loops split into three jitted functions (a first run after install pays it).
+    The function is long because it is one function without helpers on purpose: numba
+    compiles it in 0.54 s against 0.83 s for the same loops split into three jitted
+    functions (a first run after install pays it).
 
     Parameters
     ----------
