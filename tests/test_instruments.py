@@ -86,6 +86,30 @@ def test_rising_r_at_end_of_lag_range_gives_no_peak_and_is_counted_as_boundary()
     assert np.isnan(dominant_peaks(r[2], lags, dominance=0.9).tau_hat)
 
 
+def test_non_finite_lags_are_never_the_largest_and_never_a_boundary():
+    """A NaN lag (a window with zero deviation at that lag) is never the largest R nor a
+    neighbour that makes a peak; a window all NaN has no peak and no boundary; an infinite
+    R is the largest and can be the peak; the significance level is per window."""
+    lags = np.arange(6) * 0.01
+    nan, inf = np.nan, np.inf
+    r = np.array([
+        [0.1, 0.3, nan, 0.4, 0.2, 0.1],  # the NaN lag spoils both neighbours' peaks
+        [nan] * 6,
+        [0.1, 0.5, 0.2, inf, 0.1, 0.0],  # the infinite lag is the largest and the peak
+        [0.2, 0.6, 0.1, 0.5, 0.3, 0.1],
+        [0.2, 0.6, 0.1, 0.5, 0.3, 0.1],
+    ])  # fmt: skip
+    sig = np.array([0.0, 0.0, 0.0, 0.55, 0.65])
+    p = dominant_peaks(r, lags, dominance=0.8, significance=sig)
+    np.testing.assert_array_equal(p.tau_hat, [nan, nan, 0.03, 0.01, nan])
+    np.testing.assert_array_equal(p.no_peak, [True, True, False, False, True])
+    np.testing.assert_array_equal(p.boundary_max, [False] * 5)
+    # one window alone gives what it gives in the batch
+    for k in range(len(r)):
+        one = dominant_peaks(r[k], lags, dominance=0.8, significance=sig[k])
+        np.testing.assert_array_equal(one.tau_hat, p.tau_hat[k])
+
+
 def _ar1(rng, phi, shape):
     e = rng.standard_normal(shape)
     out = np.empty(shape)
