@@ -342,11 +342,11 @@ def density_ratios_near_zero(
 _STCC_THREADED = 200_000
 
 
-def _each(task, n: int, threaded: bool = True) -> None:
-    """``task(i)`` for i = 0 .. n-1, across up to one thread per core when ``threaded``
-    (the tasks write disjoint outputs, so the result does not depend on the threads),
-    else in this thread."""
-    threads = min(os.cpu_count() or 1, n) if threaded else 1
+def _each(task, n: int, threads: int | None = None) -> None:
+    """``task(i)`` for i = 0 .. n-1, across up to ``threads`` threads (None: one per core;
+    the tasks write disjoint outputs, so the result does not depend on the threads), in
+    this thread when that is one."""
+    threads = min(threads or os.cpu_count() or 1, n)
     if threads > 1:
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(task, range(n)))
@@ -407,10 +407,10 @@ def stcc(
     yf = np.ascontiguousarray(y.reshape(-1, n))
     rows = xf.shape[0]
     out = np.empty((rows, starts.size, lmax + 1))
-    # tasks of (series, lag range) across threads (the loop releases the GIL): a series a
-    # task, or, with fewer series than cores, each series' lags in one range per core.
-    # Each lag is computed alone, so R does not depend on the threads or the split.  A
-    # short batch (below _STCC_THREADED samples in all) runs in this thread
+    # tasks of (series, lag range) on a thread per _STCC_THREADED samples, up to one per
+    # core (the loop releases the GIL): a series a task, or, with fewer series than
+    # threads, each series' lags in one range per thread.  Each lag is computed alone, so
+    # R does not depend on the threads or the split; a short batch runs in this thread
     threads = min(os.cpu_count() or 1, 1 + (x.size - 1) // _STCC_THREADED)
     parts = 1 if rows >= threads else -(-threads // rows)
     edges = np.linspace(0, lmax + 1, parts + 1).round().astype(int)
@@ -419,7 +419,7 @@ def stcc(
         r, p = divmod(i, parts)
         stcc_lags(xf[r], yf[r], first, g, w // g, edges[p], edges[p + 1], out[r])
 
-    _each(lags, rows * parts, threaded=threads > 1)
+    _each(lags, rows * parts, threads)
     return starts * dt, np.arange(lmax + 1) * dt, out.reshape(*x.shape[:-1], *out.shape[1:])
 
 
