@@ -52,6 +52,12 @@ def register_engine(name: str, engine: Engine) -> None:
     _import_errors.pop(name, None)
 
 
+def registered_at_runtime(name: str) -> bool:
+    """True for an engine registered in this process by :func:`register_engine` (another
+    process does not know it: it runs in this one), False for one found by its entry."""
+    return check_engine_name(name) in _runtime
+
+
 @functools.cache
 def _plugins() -> tuple[tuple[str, str], ...]:
     """The ``cipval.engines`` entry points, read once per process (a scan of every

@@ -142,10 +142,10 @@ def test_engines_command_rejects_an_unknown_engine(capsys) -> None:
 
 def test_an_absent_engine_is_listed_as_skipped_with_the_reason(monkeypatch) -> None:
     from cipcore import registry
-    from validation.engines import compare_engines
+    from validation.engines import EnginesSetting, compare_engines
 
     monkeypatch.setitem(registry.ENGINES, "absent", "cipval_no_such_module:ENGINE")
-    res = compare_engines(["absent"], "smoke")
+    res = compare_engines(["absent"], EnginesSetting("smoke"))
     (row,) = res["engines"]
     assert row["status"] == "skipped" and "cipval_no_such_module" in row["reason"]
     from validation.engines import markdown

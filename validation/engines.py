@@ -21,7 +21,7 @@ with the reason.  The verdict of an engine is the worst of its checks.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -112,19 +112,55 @@ def validate_engine(
 
     ``selftest`` also injects the fault catalogue at a rigid-body engine's boundary
     (:func:`validation.faults.selftest.run_selftest`, seed 1, 2 realisations) and reports
-    how many applicable faults its checks flag.
-
-    The function is long because it runs the agreement stages in order and keeps every
-    finished stage when an engine fails.
+    how many applicable faults its checks flag.  The throughput first, then
+    :func:`engine_checks`.
     """
     prof = _profile(profile, seed)
     reason = availability(name)
     if reason is not None:
-        return {"engine": name, "status": "skipped", "reason": reason}
+        return _skipped(name, reason)
+    t0 = time.perf_counter()
+    row = _joined(engine_throughput(name, prof, threads),
+                  engine_checks(name, prof, threads, integrator, selftest))  # fmt: skip
+    row["seconds"] = round(time.perf_counter() - t0, 1)
+    return row
+
+
+def _joined(start: dict[str, Any], checks: dict[str, Any]) -> dict[str, Any]:
+    """An engine's row: :func:`engine_throughput`'s fields, then :func:`engine_checks`'s."""
+    stages = {**start["stage_seconds"], **checks["stage_seconds"]}
+    return {**start, **checks, "stage_seconds": stages}
+
+
+def _skipped(name: str, reason: str) -> dict[str, Any]:
+    return {"engine": name, "status": "skipped", "reason": reason}
+
+
+def engine_throughput(name: str, profile: Profile, threads: int | None) -> dict[str, Any]:
+    """The start of an engine's row: its capabilities and its throughput (the engine's
+    first call, compilation included, then a timed call: :data:`THROUGHPUT`)."""
+    engine = get_engine(name)
+    t = time.perf_counter()
+    tp = _throughput(engine, profile, profile.seed, threads)
+    return {"engine": name, "capabilities": engine.capabilities.as_dict(), "throughput": tp,
+            "stage_seconds": {"throughput": round(time.perf_counter() - t, 1)}}  # fmt: skip
+
+
+def engine_checks(
+    name: str, profile: Profile, threads: int | None = None, integrator: str | None = None,
+    selftest: bool = False,
+) -> dict[str, Any]:  # fmt: skip
+    """The checks of one available engine as fields of its row: ``checks``, ``failed``,
+    ``status`` and ``stage_seconds`` (wall seconds per stage), and the distances, tiers and
+    tolerances read from the checks.
+
+    The function is long because it runs the agreement stages in order and keeps every
+    finished stage when an engine fails.
+    """
+    prof = profile
     engine = get_engine(name)
     caps = engine.capabilities
-    row: dict[str, Any] = {"engine": name, "capabilities": caps.as_dict()}
-    t0 = time.perf_counter()
+    row: dict[str, Any] = {}
     stages: dict[str, float] = {}  # wall seconds per stage, in the report
 
     def timed(stage: str, fn, *args, **kwargs):
@@ -134,7 +170,6 @@ def validate_engine(
         return out
 
     row["stage_seconds"] = stages
-    row["throughput"] = timed("throughput", _throughput, engine, prof, prof.seed, threads)
     if caps.rigid_body:
         target = {"engine": name, "integrator": integrator}
         checks = timed("lambda1", agreement.lyapunov_checks, prof, threads, **target)[0]
@@ -195,7 +230,6 @@ def validate_engine(
     row["checks"] = [c.as_dict() for c in checks]
     row["failed"] = [c.name for c in checks if c.status == FAIL]
     row["status"] = worst([c.status for c in checks])
-    row["seconds"] = round(time.perf_counter() - t0, 1)
     return row
 
 
@@ -219,32 +253,81 @@ def parse_engines(text: str | None) -> list[str]:
     return [check_engine_name(n) for n in names]
 
 
+@dataclass(frozen=True)
+class EnginesSetting:
+    """How ``cip-validate engines`` checks the engines: one value.
+
+    profile : a profile name (:data:`validation.profiles.PROFILES`).  seed : replaces the
+    profile's root seed.  threads : threads per engine (None: all cores, or
+    ``cores // jobs`` beside other engines).  jobs : engines checked at a time, each in a
+    process of its own.  integrator : MuJoCo's integrator for the engines that follow
+    the model file.  selftest : also inject the fault catalogue into each rigid-body
+    engine.
+    """
+
+    profile: str = "quick"
+    seed: int | None = None
+    threads: int | None = None
+    jobs: int = 1
+    integrator: str | None = None
+    selftest: bool = False
+
+
 def compare_engines(
-    names: list[str],
-    profile: str = "quick",
-    seed: int | None = None,
-    threads: int | None = None,
-    progress: Any = None,
-    integrator: str | None = None,
-    selftest: bool = False,
+    names: list[str], setting: EnginesSetting = EnginesSetting(), progress: Any = None
 ) -> dict[str, Any]:
-    """Rows of :func:`validate_engine` for ``names`` plus speed ratios to MuJoCo on the CPU."""
-    prof = _profile(profile, seed)
-    rows = []
+    """Rows of :func:`validate_engine` for ``names`` plus speed ratios to MuJoCo on the CPU.
+
+    Every engine's throughput is measured first, one engine at a time in this process, so
+    that no engine is timed beside another; then the checks run ``jobs`` engines at a
+    time, each in a process of its own (:func:`validation.engine_jobs.run_side_by_side`),
+    the slowest engine (lowest throughput) first.  Without ``threads``, an engine checked
+    beside others gets ``cores // jobs`` threads.  The checks' numbers do not depend on
+    ``jobs``; an engine's ``seconds`` (throughput + checks, its process start included)
+    does, and the run record states ``jobs``.  ``progress(line)`` is told each step.
+    """
+    from functools import partial
+
+    from cipcore.driver import default_threads
+    from cipcore.registry import registered_at_runtime
+    from validation.engine_jobs import EngineJob, run_side_by_side
+
+    prof = _profile(setting.profile, setting.seed)
+    threads, jobs = setting.threads, setting.jobs
+    say = progress or (lambda line: None)
+    rows: dict[str, dict[str, Any]] = {}
     for n in names:
-        if progress:
-            progress(n)
-        rows.append(validate_engine(n, prof, None, threads, integrator, selftest))
-    base = next((r for r in rows if r["engine"] == SPEED_BASELINE and "throughput" in r), None)
-    for r in rows:
+        reason = availability(n)
+        if reason is not None:
+            rows[n] = _skipped(n, reason)
+            continue
+        say(f"engine {n}: throughput")
+        rows[n] = engine_throughput(n, prof, threads)
+    ran = [n for n in names if "throughput" in rows[n]]
+    workers = max(1, min(jobs, len(ran)))
+    each = threads if threads is not None or workers == 1 else max(1, default_threads() // workers)
+    work = partial(engine_checks, profile=prof, threads=each, integrator=setting.integrator,
+                   selftest=setting.selftest)  # fmt: skip
+    todo = [EngineJob(n, cost=1.0 / rows[n]["throughput"]["realization_steps_per_s"],
+                      device=rows[n]["capabilities"].get("device", "cpu"),
+                      here=registered_at_runtime(n)) for n in ran]  # fmt: skip
+    beside = f" ({workers} engines at a time)" if workers > 1 else ""
+    checked = run_side_by_side(todo, work, workers,
+                               started=lambda n: say(f"engine {n}: checks{beside}"))  # fmt: skip
+    for n, (fields, wall) in checked.items():
+        rows[n] = _joined(rows[n], fields)
+        rows[n]["seconds"] = round(rows[n]["stage_seconds"]["throughput"] + wall, 1)
+    ordered = [rows[n] for n in names]
+    base = next((r for r in ordered if r["engine"] == SPEED_BASELINE and "throughput" in r), None)
+    for r in ordered:
         if base is not None and "throughput" in r:
             r["throughput"]["ratio_to_" + SPEED_BASELINE] = (
                 r["throughput"]["realization_steps_per_s"]
                 / base["throughput"]["realization_steps_per_s"]
             )
-    ran = [r["status"] for r in rows if r["status"] != "skipped"]
-    return {"profile": prof.name, "seed": prof.seed, "engines": rows,
-            "status": worst(ran) if ran else INCONCLUSIVE}  # fmt: skip
+    verdicts = [r["status"] for r in ordered if r["status"] != "skipped"]
+    return {"profile": prof.name, "seed": prof.seed, "engines": ordered, "jobs": workers,
+            "status": worst(verdicts) if verdicts else INCONCLUSIVE}  # fmt: skip
 
 
 def _g(v: Any, fmt: str = ".3g") -> str:
@@ -307,6 +390,12 @@ def _run_line(run: dict[str, Any]) -> str:
     return text + ")."
 
 
+def _jobs_line(jobs: int) -> str:
+    return (f"The throughputs were measured one engine at a time; the checks ran {jobs} "
+            "engines at a time, each in a process of its own, so an engine's time below was "
+            "measured beside the others (its checks' numbers do not depend on it).")  # fmt: skip
+
+
 def markdown(results: dict[str, Any]) -> str:
     """The cross-engine table (one row per engine) and each engine's failed checks."""
     lines = [
@@ -322,6 +411,7 @@ def markdown(results: dict[str, Any]) -> str:
         "the dt -> 0 limit, within the floor; the observed order at least the declared one).",
         "",
         *([_run_line(results["run"]), ""] if results.get("run") else []),
+        *([_jobs_line(results["jobs"]), ""] if results.get("jobs", 1) > 1 else []),
         "| engine | verdict | family | precision | integrator | rod | tier (single/coupled) "
         "| refinement E0 single / coupled (floor) | observed order | twin distance single "
         "| twin distance coupled | twin tolerance | rod stretch (vs twin or /e) | delay (steps) "

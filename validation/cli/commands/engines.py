@@ -87,8 +87,14 @@ def engine_versions(names: list[str]) -> dict[str, str]:
     "DIR/report.md and report.html; an engine not installed here is skipped with the reason."
 )
 def cmd_engines(a: argparse.Namespace) -> int:
+    from cipcore.driver import default_threads
     from cipcore.params import ParameterError
-    from validation.engines import compare_engines, parse_engines, write_engine_reports
+    from validation.engines import (
+        EnginesSetting,
+        compare_engines,
+        parse_engines,
+        write_engine_reports,
+    )
 
     given = a.engines  # names of the registry, each once (the "engines" domain)
     if given is not None and "all" in given and len(given) > 1:
@@ -103,13 +109,14 @@ def cmd_engines(a: argparse.Namespace) -> int:
     out = check_out_dir("--out", a.out)  # checked before any work
     junit = junit_file(a)
     quiet = a.json or a.quiet
-    say = (lambda n: None) if quiet else (lambda n: print(f"engine {n} ...", file=sys.stderr))
+    say = (lambda line: None) if quiet else (lambda line: print(line, file=sys.stderr))
     started = run_record()
     try:
         # an engine's import banner (warp's) must not corrupt the JSON on stdout
         with stdout_to_stderr() if a.json else contextlib.nullcontext():
-            results = compare_engines(names, a.profile, a.seed, a.threads, progress=say,
-                                      integrator=a.integrator, selftest=a.selftest)  # fmt: skip
+            setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
+                                     a.integrator, a.selftest)  # fmt: skip
+            results = compare_engines(names, setting, progress=say)
         env = run_environment()  # versions, platform, fingerprint: computed once
         versions = {**env["versions"], **engine_versions(names)}
         results["run"] = {**run_record(started), "versions": versions}
@@ -167,6 +174,10 @@ def add_engines_command(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--selftest", action="store_true",
                    help="also inject the fault catalogue into each rigid-body engine")  # fmt: skip
     add_threads_arg(p)
+    add_option(p, "--jobs", domain="workers", default=None, metavar="N",
+               help="engines checked at a time, each in a process of its own (count >= 1; "
+               "default: one per core); the throughputs are measured first, one engine at a "
+               "time; results do not depend on it")  # fmt: skip
     add_option(p, "--out", domain="out dir", default="cip-engines-out", metavar="DIR",
                    help="output directory (created if absent; must be writable)")  # fmt: skip
     add_no_figures_arg(p, "skip the speed-accuracy figure")

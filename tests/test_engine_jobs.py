@@ -1,0 +1,91 @@
+"""Engines side by side (:mod:`validation.engine_jobs`): values, errors, dead processes,
+one accelerator job at a time, and no process left running after a failure.
+
+The jobs' work is :func:`eval` of the job's name, so that a job can return a value,
+raise, exit or be killed without a helper module the worker processes must import.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from validation.engine_jobs import EngineJob, EngineJobError, run_side_by_side
+
+SLEEP = "(__import__('time').time(), __import__('time').sleep({s}), __import__('time').time())"
+
+
+def test_values_come_back_by_name_in_the_given_order_whatever_the_workers():
+    jobs = [EngineJob("1 + 1", cost=1.0), EngineJob("'a' * 3", cost=5.0), EngineJob("[2] * 2")]
+    for workers in (1, 2, 3):
+        out = run_side_by_side(jobs, eval, workers)
+        assert list(out) == [j.name for j in jobs]
+        assert [v for v, _ in out.values()] == [2, "aaa", [2, 2]]
+        assert all(s >= 0 for _, s in out.values())
+
+
+def test_a_job_here_runs_in_this_process_beside_the_others():
+    pid = "__import__('os').getpid()"
+    out = run_side_by_side([EngineJob(pid), EngineJob(pid + " + 0", here=True)], eval, 2)
+    assert out[pid + " + 0"][0] == os.getpid() != out[pid][0]
+
+
+def test_started_is_told_each_job_longest_first():
+    seen: list[str] = []
+    jobs = [EngineJob("1", cost=1.0), EngineJob("2", cost=3.0), EngineJob("3", cost=2.0)]
+    run_side_by_side(jobs, eval, 2, started=seen.append)
+    assert seen == ["2", "3", "1"]
+
+
+def test_an_exception_comes_back_with_its_type_and_message():
+    with pytest.raises(ZeroDivisionError, match="division by zero"):
+        run_side_by_side([EngineJob("1"), EngineJob("1 / 0")], eval, 2)
+
+
+def test_a_process_that_exits_or_is_killed_names_the_engine():
+    with pytest.raises(EngineJobError, match=r"exited with status 3 without a result"):
+        run_side_by_side([EngineJob("__import__('os')._exit(3)")], eval, 2)
+    kill = "__import__('os').kill(__import__('os').getpid(), 9)"
+    with pytest.raises(EngineJobError, match=r"engine .*kill.*: its process killed by SIGKILL"):
+        run_side_by_side([EngineJob(kill), EngineJob("2")], eval, 2)
+
+
+def test_accelerator_jobs_run_one_at_a_time_and_cpu_jobs_side_by_side():
+    a, b = SLEEP.format(s=0.4), SLEEP.format(s=0.4) + " "
+    gpu = run_side_by_side([EngineJob(a, device="gpu"), EngineJob(b, device="gpu")], eval, 2)
+    (s1, _, e1), (s2, _, e2) = (v for v, _ in gpu.values())
+    assert s2 >= e1 or s1 >= e2  # never both at once
+    cpu = run_side_by_side([EngineJob(a), EngineJob(b)], eval, 2)
+    (s1, _, e1), (s2, _, e2) = (v for v, _ in cpu.values())
+    assert s2 < e1 and s1 < e2  # both at once
+
+
+def test_a_failure_stops_the_jobs_still_running(tmp_path):
+    pid_file = tmp_path / "pid"
+    sleeper = (f"open({str(pid_file)!r}, 'w').write(str(__import__('os').getpid())) "
+               "and __import__('time').sleep(120)")  # fmt: skip
+    fail = "__import__('time').sleep(1.0) or 1 / 0"
+    t0 = time.monotonic()
+    with pytest.raises(ZeroDivisionError):
+        run_side_by_side([EngineJob(sleeper, cost=2.0), EngineJob(fail, cost=1.0)], eval, 2)
+    assert time.monotonic() - t0 < 60
+    pid = int(pid_file.read_text())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+
+
+def test_engines_side_by_side_give_the_numbers_of_one_at_a_time():
+    """`cip-validate engines --jobs 2` against `--jobs 1`: every check the same, value for
+    value; the throughput is measured first in either case (one engine at a time)."""
+    from validation.engines import EnginesSetting, compare_engines
+
+    names = ["reduced", "mujoco"]
+    one, two = (compare_engines(names, EnginesSetting("smoke", threads=1, jobs=j))
+                for j in (1, 2))  # fmt: skip
+    assert (one["jobs"], two["jobs"]) == (1, 2)
+    for a, b in zip(one["engines"], two["engines"], strict=True):
+        assert a["engine"] == b["engine"] and a["status"] == b["status"] == "pass"
+        assert a["checks"] == b["checks"]
+        assert set(a["stage_seconds"]) == set(b["stage_seconds"])
