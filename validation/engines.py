@@ -233,6 +233,15 @@ def engine_checks(
     return row
 
 
+def _step_cost(row: dict[str, Any]) -> float:
+    """Seconds per step of one realisation as the checks run it, from the throughput: a
+    batch engine (``Capabilities.batch``) steps all of a call's realisations in the time
+    of one, so a realisation costs it the throughput batch's step."""
+    tp = row["throughput"]
+    per = tp["realizations"] if row["capabilities"]["batch"] else 1
+    return per / tp["realization_steps_per_s"]
+
+
 def _profile(profile: Profile | str, seed: int | None) -> Profile:
     if isinstance(profile, str):
         if profile not in PROFILES:
@@ -281,10 +290,11 @@ def compare_engines(
     Every engine's throughput is measured first, one engine at a time in this process, so
     that no engine is timed beside another; then the checks run ``jobs`` engines at a
     time, each in a process of its own (:func:`validation.engine_jobs.run_side_by_side`),
-    the slowest engine (lowest throughput) first.  Without ``threads``, an engine checked
-    beside others gets ``cores // jobs`` threads.  The checks' numbers do not depend on
-    ``jobs``; an engine's ``seconds`` (throughput + checks, its process start included)
-    does, and the run record states ``jobs``.  ``progress(line)`` is told each step.
+    the slowest engine first (per step of one realisation: :func:`_step_cost`).  Without
+    ``threads``, an engine checked beside others gets ``cores // jobs`` threads.  The
+    checks' numbers do not depend on ``jobs``; an engine's ``seconds`` (throughput +
+    checks, its process start included) does, and the result states ``jobs``.
+    ``progress(line)`` is told each step.
     """
     from functools import partial
 
@@ -308,8 +318,7 @@ def compare_engines(
     each = threads if threads is not None or workers == 1 else max(1, default_threads() // workers)
     work = partial(engine_checks, profile=prof, threads=each, integrator=setting.integrator,
                    selftest=setting.selftest)  # fmt: skip
-    todo = [EngineJob(n, cost=1.0 / rows[n]["throughput"]["realization_steps_per_s"],
-                      device=rows[n]["capabilities"].get("device", "cpu"),
+    todo = [EngineJob(n, cost=_step_cost(rows[n]), device=rows[n]["capabilities"]["device"],
                       here=registered_at_runtime(n)) for n in ran]  # fmt: skip
     beside = f" ({workers} engines at a time)" if workers > 1 else ""
     checked = run_side_by_side(todo, work, workers,
