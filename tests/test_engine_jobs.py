@@ -89,3 +89,53 @@ def test_engines_side_by_side_give_the_numbers_of_one_at_a_time():
         assert a["engine"] == b["engine"] and a["status"] == b["status"] == "pass"
         assert a["checks"] == b["checks"]
         assert set(a["stage_seconds"]) == set(b["stage_seconds"])
+
+
+def test_a_kept_error_is_the_jobs_value_and_the_others_go_on():
+    kill = "__import__('os').kill(__import__('os').getpid(), 9)"
+    jobs = [EngineJob("1 / 0"), EngineJob("2 + 2"), EngineJob("[] + 1", here=True)]
+    for workers, extra in ((1, []), (2, [EngineJob(kill)])):  # one process: no kill here
+        out = run_side_by_side(jobs + extra, eval, workers, kept=lambda e: True)
+        assert isinstance(out["1 / 0"][0], ZeroDivisionError)
+        assert isinstance(out["[] + 1"][0], TypeError) and out["2 + 2"][0] == 4
+        if extra:
+            assert isinstance(out[kill][0], EngineJobError)
+    with pytest.raises(ZeroDivisionError):  # one it does not keep ends the run
+        run_side_by_side(jobs, eval, 2, kept=lambda e: isinstance(e, TypeError))
+
+
+def test_an_engine_that_crashes_is_a_row_and_the_others_are_written(tmp_path, capsys):
+    """`engines` with an --engine-cmd program that answers its handshake and then exits
+    with status 5: its row is "crashed" with the reason, the reference's row is checked
+    and written, the JUnit file has an error, and the command exits 4."""
+    import json
+    import shlex
+    import sys
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+
+    from validation.cli.main import main
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "chunk_engine.py"
+    count = tmp_path / "starts"
+    script = (f"import os, pathlib, sys; p = pathlib.Path({str(count)!r}); "
+              "n = int(p.read_text()) if p.exists() else 0; p.write_text(str(n + 1)); "
+              f"sys.exit(5) if n >= 1 else os.execv(sys.executable, "
+              f"[sys.executable, {str(example)!r}])")  # fmt: skip
+    cmd = shlex.join([sys.executable, "-c", script])
+    junit = tmp_path / "e.xml"
+    code = main(["engines", "--engine-cmd", cmd, "--engines", "reduced", "--profile", "smoke",
+                 "--json", "--no-figures", "--out", str(tmp_path / "o"), "--jobs", "2",
+                 "--junit", str(junit)])  # fmt: skip
+    captured = capsys.readouterr()
+    assert code == 4 and "an engine crashed: command" in captured.err
+    assert "exited with status 5" in captured.err
+    doc = json.loads(captured.out)
+    rows = {r["engine"]: r for r in doc["engines"]}
+    assert rows["reduced"]["status"] == "pass" and rows["command"]["status"] == "crashed"
+    assert doc["crashed"] == ["command"] and "exited with status 5" in rows["command"]["reason"]
+    saved = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert [r["status"] for r in saved["engines"]] == ["pass", "crashed"]
+    assert "| command | crashed |" in (tmp_path / "o" / "report.md").read_text()
+    root = ET.parse(junit).getroot()
+    assert root.get("errors") == "1" and root.get("failures") == "0"

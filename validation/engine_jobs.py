@@ -23,7 +23,9 @@ keeps computing after the command ends.  A job's exception is raised here as it
 was raised there (its message and type, where it pickles; else a
 :class:`EngineJobError` with its message); a process that dies without an answer
 (a segfault, the kernel's OOM killer) raises :class:`EngineJobError` naming the
-engine and the signal.
+engine and the signal.  With ``kept``, an error that ``kept(error)`` accepts becomes
+that job's value instead, and the other jobs go on: one engine that crashes costs
+the run nothing else.
 """
 
 from __future__ import annotations
@@ -99,20 +101,29 @@ def _next(pending: list[EngineJob], running: list[EngineJob]) -> EngineJob | Non
 def run_side_by_side(
     jobs: list[EngineJob], work: Callable[[str], Any], workers: int,
     started: Callable[[str], None] | None = None,
+    kept: Callable[[BaseException], bool] | None = None,
 ) -> dict[str, tuple[Any, float]]:  # fmt: skip
     """``{job.name: (work(job.name), seconds)}``, at most ``workers`` jobs at a time (see
     the module docstring); ``seconds``: from the job's start (its process's included) to
     its value here.
 
     ``work`` must pickle (a module-level function or a :func:`functools.partial` of
-    one).  ``started(name)`` is called as each job starts.  ``workers`` 1 runs every
-    job here, one after the other, in the given order.
+    one).  ``started(name)`` is called as each job starts.  ``kept(error)``: True where a
+    job's error (an :class:`Exception` it raised, or :class:`EngineJobError` for a
+    process that died) is to be its value rather than end the run; an interrupt always
+    ends it.  ``workers`` 1 runs every job here, one after the other, in the given order.
     """
     say = started or (lambda name: None)
+
+    def failed(error: BaseException) -> BaseException:
+        if isinstance(error, Exception) and kept is not None and kept(error):
+            return error
+        raise error
+
     if workers <= 1:
         out = {}
         for j in jobs:
-            out[j.name] = _here(j, work, say)
+            out[j.name] = _here(j, work, say, failed)
         return out
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
@@ -142,18 +153,18 @@ def run_side_by_side(
             kind, value = conn.recv()
         except EOFError:
             proc.join()
-            raise _died(job.name, proc.exitcode) from None
+            kind, value = "error", _died(job.name, proc.exitcode)
         finally:
             conn.close()
         proc.join()
         if kind == "error":
-            raise value
+            value = failed(value)
         out[job.name] = (value, time.perf_counter() - t0)
 
     try:
         start(workers - 1 if here else workers)
         for j in here:  # the jobs beside it keep running; their answers wait in the pipes
-            out[j.name] = _here(j, work, say)
+            out[j.name] = _here(j, work, say, failed)
         start(workers)
         while running:
             for conn in wait(list(running)):
@@ -164,10 +175,16 @@ def run_side_by_side(
     return {j.name: out[j.name] for j in jobs}
 
 
-def _here(job: EngineJob, work: Callable[[str], Any], say: Callable[[str], None]):
+def _here(job: EngineJob, work: Callable[[str], Any], say: Callable[[str], None],
+          failed: Callable[[BaseException], BaseException]) -> tuple[Any, float]:  # fmt: skip
+    """A job run in this process: its value (or its kept error) and wall seconds."""
     say(job.name)
     t0 = time.perf_counter()
-    return work(job.name), time.perf_counter() - t0
+    try:
+        value = work(job.name)
+    except Exception as exc:
+        value = failed(exc)
+    return value, time.perf_counter() - t0
 
 
 def _stop(procs: list) -> None:

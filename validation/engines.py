@@ -15,7 +15,9 @@ the linearisation residual where the engine can linearise
 (max |A_full - A_reduced - predicted extra terms|, 1/s^2).
 
 An engine that is not installed or needs an absent device is listed as skipped
-with the reason.  The verdict of an engine is the worst of its checks.
+with the reason; one that raises or whose process dies is listed as crashed with
+the reason, and the other engines go on.  The verdict of an engine is the worst
+of its checks.
 """
 
 from __future__ import annotations
@@ -40,6 +42,9 @@ from validation.profiles import PAPER_BETA, PROFILES, TRAJECTORY_WINDOW, Profile
 SPEED_BASELINE = "mujoco"
 #: Largest linearisation residual (1/s^2) of an engine that linearises.
 LINEARIZATION_TOLERANCE = 1e-6
+#: An engine's status when it raised or its process died: its row keeps what was measured
+#: before, ``reason`` says why, and the command exits 4 after writing every other row.
+CRASHED = "crashed"
 #: Throughput batch (realisations) and duration (s) per profile name (default: quick's).
 THROUGHPUT = {"smoke": (8, 0.2), "quick": (64, 1.0), "paper": (256, 2.0)}
 
@@ -312,8 +317,13 @@ def compare_engines(
             rows[n] = _skipped(n, reason)
             continue
         say(f"engine {n}: throughput")
-        rows[n] = engine_throughput(n, prof, threads)
-    ran = [n for n in names if "throughput" in rows[n]]
+        try:
+            rows[n] = engine_throughput(n, prof, threads)
+        except ParameterError:
+            raise
+        except Exception as exc:
+            rows[n] = _crashed({"engine": n}, exc)
+    ran = [n for n in names if rows[n].get("status") is None]
     workers = max(1, min(jobs, len(ran)))
     each = threads if threads is not None or workers == 1 else max(1, default_threads() // workers)
     work = partial(engine_checks, profile=prof, threads=each, integrator=setting.integrator,
@@ -321,9 +331,12 @@ def compare_engines(
     todo = [EngineJob(n, cost=_step_cost(rows[n]), device=rows[n]["capabilities"]["device"],
                       here=registered_at_runtime(n)) for n in ran]  # fmt: skip
     beside = f" ({workers} engines at a time)" if workers > 1 else ""
-    checked = run_side_by_side(todo, work, workers,
+    checked = run_side_by_side(todo, work, workers, kept=_kept,
                                started=lambda n: say(f"engine {n}: checks{beside}"))  # fmt: skip
     for n, (fields, wall) in checked.items():
+        if isinstance(fields, Exception):
+            rows[n] = _crashed(rows[n], fields)
+            continue
         rows[n] = _joined(rows[n], fields)
         rows[n]["seconds"] = round(rows[n]["stage_seconds"]["throughput"] + wall, 1)
     ordered = [rows[n] for n in names]
@@ -334,9 +347,27 @@ def compare_engines(
                 r["throughput"]["realization_steps_per_s"]
                 / base["throughput"]["realization_steps_per_s"]
             )
-    verdicts = [r["status"] for r in ordered if r["status"] != "skipped"]
+    verdicts = [r["status"] for r in ordered if _ran(r)]
     return {"profile": prof.name, "seed": prof.seed, "engines": ordered, "jobs": workers,
-            "status": worst(verdicts) if verdicts else INCONCLUSIVE}  # fmt: skip
+            "status": worst(verdicts) if verdicts else INCONCLUSIVE,
+            "crashed": [r["engine"] for r in ordered if r["status"] == CRASHED]}  # fmt: skip
+
+
+def _kept(error: BaseException) -> bool:
+    """An engine's error that becomes its row (:data:`CRASHED`) while the other engines go
+    on: any but bad input (:class:`ParameterError`, e.g. an integrator the engine
+    refuses), which ends the command."""
+    return not isinstance(error, ParameterError)
+
+
+def _crashed(row: dict[str, Any], error: BaseException) -> dict[str, Any]:
+    """``row`` (what was measured before the error) marked :data:`CRASHED` with the reason."""
+    return {**row, "status": CRASHED, "reason": f"{type(error).__name__}: {error}"}
+
+
+def _ran(row: dict[str, Any]) -> bool:
+    """Whether the engine's checks gave a verdict (not skipped here, not crashed)."""
+    return row["status"] not in ("skipped", CRASHED)
 
 
 def _g(v: Any, fmt: str = ".3g") -> str:
@@ -429,9 +460,9 @@ def markdown(results: dict[str, Any]) -> str:
         "|" + "---|" * 19,
     ]
     for r in results["engines"]:
-        if r["status"] == "skipped":
-            lines.append(f"| {r['engine']} | skipped | " + " | ".join(["n/a"] * 16)
-                         + f" | skipped: {r['reason'].replace('|', '/')} |")  # fmt: skip
+        if not _ran(r):
+            lines.append(f"| {r['engine']} | {r['status']} | " + " | ".join(["n/a"] * 16)
+                         + f" | {r['status']}: {r['reason'].replace('|', '/')} |")  # fmt: skip
             continue
         c = r["capabilities"]
         tw = r.get("twin_distance") or {}
@@ -453,7 +484,7 @@ def markdown(results: dict[str, Any]) -> str:
         )
     lines += reproduced_table(results)
     for r in results["engines"]:
-        if r["status"] == "skipped":
+        if not _ran(r):
             continue
         c = r["capabilities"]
         lines += ["", f"## {r['engine']}", ""]
@@ -493,7 +524,7 @@ def reproduced_table(results: dict[str, Any]) -> list[str]:
     reduced model).
     """
     rows = [r for r in results["engines"]
-            if r["status"] != "skipped" and r["capabilities"].get("rigid_body")]  # fmt: skip
+            if _ran(r) and r["capabilities"].get("rigid_body")]  # fmt: skip
     if not rows:
         return []
     gains = []
@@ -537,7 +568,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path | None:
     import matplotlib.pyplot as plt
 
     pts = [r for r in results["engines"]
-           if r["status"] != "skipped" and r["engine"] != REFERENCE]  # fmt: skip
+           if _ran(r) and r["engine"] != REFERENCE]  # fmt: skip
     if not pts:
         return None
     fig, ax = plt.subplots(figsize=(5.5, 4))

@@ -31,7 +31,8 @@ MEANING = {
     EXIT_FAIL: "a validation check failed",
     EXIT_USAGE: "bad input (one line naming the parameter); nothing computed",
     EXIT_REGRESSION: "checks passed but a regression number moved beyond its tolerance",
-    EXIT_CRASH: "the engine or a stage crashed; results.json written, partial, naming the stage",
+    EXIT_CRASH: "the engine or a stage crashed; results.json written, partial, naming the stage "
+    "(engines: the engine's row crashed, every other row checked)",
     EXIT_SIGINT: "interrupted by SIGINT (finished stages kept)",
     EXIT_SIGTERM: "interrupted by SIGTERM (finished stages kept)",
 }

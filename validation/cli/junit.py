@@ -5,7 +5,8 @@ CI systems (GitLab, Jenkins, GitHub's test reporters) read this format: a
 ``engines``), one ``<testcase>`` per check.  A failed check is a
 ``<failure>`` whose message carries the check's value and tolerance; an
 inconclusive check (too few realisations to decide) and an engine that cannot
-run here are ``<skipped>`` with the reason; a passing check has no child.
+run here are ``<skipped>`` with the reason; an engine that crashed (``engines``) is
+an ``<error>`` with the reason; a passing check has no child.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import Any
 
 __all__ = ["Case", "engines_cases", "run_cases", "selftest_cases", "write_junit"]
 
-#: (suite, classname, name, status, message, details): status pass / fail / skipped
+#: (suite, classname, name, status, message, details): status pass / fail / error / skipped
 Case = tuple[str, str, str, str, str, str]
 
 
@@ -97,12 +98,16 @@ def selftest_cases(clean: list[str], rows: list[dict]) -> list[Case]:
 
 
 def engines_cases(results: dict) -> list[Case]:
-    """One suite per engine, one case per check; an engine absent here is skipped."""
+    """One suite per engine, one case per check; an engine absent here is skipped, one that
+    crashed an error."""
     out: list[Case] = []
     for r in results.get("engines", []):
         suite = f"engines.{r['engine']}"
         if r["status"] == "skipped":
             out.append((suite, suite, r["engine"], "skipped", r.get("reason", ""), ""))
+            continue
+        if r["status"] == "crashed":
+            out.append((suite, suite, r["engine"], "error", r.get("reason", ""), ""))
             continue
         checks = r.get("checks", {})
         items = (
@@ -128,18 +133,21 @@ def write_junit(cases: list[Case], path: Path | str, elapsed_s: float = 0.0) -> 
         if status == "fail":
             el = ET.SubElement(tc, "failure", message=message[:1000], type="CheckFailed")
             el.text = details
+        elif status == "error":
+            ET.SubElement(tc, "error", message=message[:1000], type="EngineCrashed")
         elif status == "skipped":
             ET.SubElement(tc, "skipped", message=message[:1000])
     for s in [root, *suites.values()]:
         cs = s.iter("testcase")
-        n = f = k = 0
+        n = f = e = k = 0
         for tc in cs:
             n += 1
             f += tc.find("failure") is not None
+            e += tc.find("error") is not None
             k += tc.find("skipped") is not None
         s.set("tests", str(n))
         s.set("failures", str(f))
-        s.set("errors", "0")
+        s.set("errors", str(e))
         s.set("skipped", str(k))
     root.set("time", f"{elapsed_s:.2f}")
     tree = ET.ElementTree(root)

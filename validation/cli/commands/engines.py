@@ -111,20 +111,14 @@ def cmd_engines(a: argparse.Namespace) -> int:
     quiet = a.json or a.quiet
     say = (lambda line: None) if quiet else (lambda line: print(line, file=sys.stderr))
     started = run_record()
-    try:
-        # an engine's import banner (warp's) must not corrupt the JSON on stdout
-        with stdout_to_stderr() if a.json else contextlib.nullcontext():
-            setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
-                                     a.integrator, a.selftest)  # fmt: skip
-            results = compare_engines(names, setting, progress=say)
-        env = run_environment()  # versions, platform, fingerprint: computed once
-        versions = {**env["versions"], **engine_versions(names)}
-        results["run"] = {**run_record(started), "versions": versions}
-    except Exception as exc:  # an engine crashed (e.g. an --engine-cmd process died)
-        from validation.cli.exitcodes import EXIT_CRASH
-
-        print(f"cip-validate: an engine crashed: {type(exc).__name__}: {exc}", file=sys.stderr)
-        return EXIT_CRASH
+    # an engine's import banner (warp's) must not corrupt the JSON on stdout
+    with stdout_to_stderr() if a.json else contextlib.nullcontext():
+        setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
+                                 a.integrator, a.selftest)  # fmt: skip
+        results = compare_engines(names, setting, progress=say)
+    env = run_environment()  # versions, platform, fingerprint: computed once
+    versions = {**env["versions"], **engine_versions(names)}
+    results["run"] = {**run_record(started), "versions": versions}
     write_engine_reports(results, out, figures=not a.no_figures)
     if junit:
         from validation.cli.junit import engines_cases, write_junit
@@ -140,25 +134,39 @@ def cmd_engines(a: argparse.Namespace) -> int:
         doc = {"cipval_engines": 1, **results, "tolerances": tolerances, **env}
         print(json.dumps(jsonable(doc)))
     else:
-        for r in results["engines"]:
-            if r["status"] == "skipped":
-                print(f"{r['engine']:12s} skipped: {r['reason']}")
-                continue
-            tp = r["throughput"]
-            ratio = tp.get("ratio_to_mujoco")
-            tw = r.get("twin_distance")
-            dist = (f"twin distance single {tw['single']:.3g} coupled {tw['coupled']:.3g}"
-                    if tw else "reference distance coupled "
-                    f"{r['trajectory_distance']['coupled']:.3g}")  # fmt: skip
-            print(
-                f"{r['engine']:12s} {r['status']:12s} {dist}  "
-                f"{tp['realization_steps_per_s']:.3g} steps/s"
-                + (f" ({ratio:.3g} x MuJoCo CPU)" if ratio is not None else "")
-            )
-            if r["failed"]:
-                print(f"{'':12s} failed: {', '.join(r['failed'])}")
+        _print_table(results["engines"])
         print(f"report: {out / 'report.md'}")
+    # an engine that raised or whose process died (an --engine-cmd program that exits) is
+    # a row of its own, "crashed" with the reason, and every other row is written above
+    rows = {r["engine"]: r for r in results["engines"]}
+    for name in results["crashed"]:
+        print(f"cip-validate: an engine crashed: {name}: {rows[name]['reason']}", file=sys.stderr)
+    if results["crashed"]:
+        from validation.cli.exitcodes import EXIT_CRASH
+
+        return EXIT_CRASH
     return EXIT_OK if results["status"] != "fail" else EXIT_FAIL
+
+
+def _print_table(rows: list[dict]) -> None:
+    """One line per engine: verdict, distance, throughput (or why it did not run)."""
+    for r in rows:
+        if r["status"] in ("skipped", "crashed"):
+            print(f"{r['engine']:12s} {r['status']}: {r['reason']}")
+            continue
+        tp = r["throughput"]
+        ratio = tp.get("ratio_to_mujoco")
+        tw = r.get("twin_distance")
+        dist = (f"twin distance single {tw['single']:.3g} coupled {tw['coupled']:.3g}"
+                if tw else "reference distance coupled "
+                f"{r['trajectory_distance']['coupled']:.3g}")  # fmt: skip
+        print(
+            f"{r['engine']:12s} {r['status']:12s} {dist}  "
+            f"{tp['realization_steps_per_s']:.3g} steps/s"
+            + (f" ({ratio:.3g} x MuJoCo CPU)" if ratio is not None else "")
+        )
+        if r["failed"]:
+            print(f"{'':12s} failed: {', '.join(r['failed'])}")
 
 
 def add_engines_command(sub: argparse._SubParsersAction) -> None:
