@@ -139,3 +139,49 @@ def test_an_engine_that_crashes_is_a_row_and_the_others_are_written(tmp_path, ca
     assert "| command | crashed |" in (tmp_path / "o" / "report.md").read_text()
     root = ET.parse(junit).getroot()
     assert root.get("errors") == "1" and root.get("failures") == "0"
+
+
+def _marked(mark: str) -> list[int]:
+    """Processes whose environment holds ``mark`` (this machine's /proc)."""
+    from pathlib import Path
+
+    pids = []
+    for d in Path("/proc").iterdir():
+        try:
+            if d.name.isdigit() and mark.encode() in (d / "environ").read_bytes():
+                pids.append(int(d.name))
+        except OSError:  # gone, or not ours
+            continue
+    return pids
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to find the processes")
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
+    """SIGINT or SIGTERM while two engines are checked side by side: the command ends within
+    seconds, and no engine process (nor the forkserver) outlives it."""
+    import signal
+    import subprocess
+    import sys
+    import uuid
+
+    mark = f"CIPVAL_TEST_MARK={uuid.uuid4().hex}"
+    env = {**os.environ, mark.split("=")[0]: mark.split("=")[1]}
+    cmd = [sys.executable, "-m", "validation.cli.main", "engines", "--engines",
+           "mujoco,bullet", "--profile", "smoke", "--no-figures", "--jobs", "2",
+           "--out", str(tmp_path)]  # fmt: skip
+    proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE, text=True)
+    lines = []
+    for line in proc.stderr:  # wait until both engines' checks have started
+        lines.append(line)
+        if sum("checks" in x for x in lines) == 2:
+            break
+    time.sleep(1.0)
+    assert len(_marked(mark)) >= 3  # the command, the forkserver, the engines
+    proc.send_signal(getattr(signal, sig))
+    proc.stderr.read()
+    assert proc.wait(timeout=30) != 0
+    deadline = time.monotonic() + 10
+    while _marked(mark) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert _marked(mark) == []
