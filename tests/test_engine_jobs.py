@@ -159,7 +159,10 @@ def _marked(mark: str) -> list[int]:
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
     """SIGINT or SIGTERM while two engines are checked side by side: the command ends within
-    seconds, and no engine process (nor the forkserver) outlives it."""
+    seconds with 130 or 143, no engine process (nor the forkserver) outlives it, and
+    results.json keeps what was measured (partial: each engine's throughput, its status
+    "interrupted")."""
+    import json
     import signal
     import subprocess
     import sys
@@ -179,8 +182,13 @@ def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
     time.sleep(1.0)
     assert len(_marked(mark)) >= 3  # the command, the forkserver, the engines
     proc.send_signal(getattr(signal, sig))
-    proc.stderr.read()
-    assert proc.wait(timeout=30) != 0
+    err = proc.stderr.read()
+    assert proc.wait(timeout=30) == {"SIGINT": 130, "SIGTERM": 143}[sig]
+    assert f"interrupted by {sig}: kept 0 of 2 engines" in err
+    doc = json.loads((tmp_path / "results.json").read_text())
+    assert doc["partial"] is True
+    assert [r["status"] for r in doc["engines"]] == ["interrupted", "interrupted"]
+    assert all(r["throughput"]["realization_steps_per_s"] > 0 for r in doc["engines"])
     deadline = time.monotonic() + 10
     while _marked(mark) and time.monotonic() < deadline:
         time.sleep(0.2)

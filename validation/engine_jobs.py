@@ -102,6 +102,7 @@ def run_side_by_side(
     jobs: list[EngineJob], work: Callable[[str], Any], workers: int,
     started: Callable[[str], None] | None = None,
     kept: Callable[[BaseException], bool] | None = None,
+    finished: Callable[[str, Any, float], None] | None = None,
 ) -> dict[str, tuple[Any, float]]:  # fmt: skip
     """``{job.name: (work(job.name), seconds)}``, at most ``workers`` jobs at a time (see
     the module docstring); ``seconds``: from the job's start (its process's included) to
@@ -111,9 +112,15 @@ def run_side_by_side(
     one).  ``started(name)`` is called as each job starts.  ``kept(error)``: True where a
     job's error (an :class:`Exception` it raised, or :class:`EngineJobError` for a
     process that died) is to be its value rather than end the run; an interrupt always
-    ends it.  ``workers`` 1 runs every job here, one after the other, in the given order.
+    ends it.  ``finished(name, value, seconds)`` is called as each value arrives, so that a
+    caller interrupted later keeps what finished.  ``workers`` 1 runs every job here, one
+    after the other, in the given order.
+
+    The function is long because it owns the processes from their start to their end:
+    starting, collecting and stopping share its state.
     """
     say = started or (lambda name: None)
+    done = finished or (lambda name, value, seconds: None)
 
     def failed(error: BaseException) -> BaseException:
         if isinstance(error, Exception) and kept is not None and kept(error):
@@ -124,6 +131,7 @@ def run_side_by_side(
         out = {}
         for j in jobs:
             out[j.name] = _here(j, work, say, failed)
+            done(j.name, *out[j.name])
         return out
     ctx = multiprocessing.get_context("forkserver")
     ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
@@ -160,11 +168,13 @@ def run_side_by_side(
         if kind == "error":
             value = failed(value)
         out[job.name] = (value, time.perf_counter() - t0)
+        done(job.name, *out[job.name])
 
     try:
         start(workers - 1 if here else workers)
         for j in here:  # the jobs beside it keep running; their answers wait in the pipes
             out[j.name] = _here(j, work, say, failed)
+            done(j.name, *out[j.name])
         start(workers)
         while running:
             for conn in wait(list(running)):

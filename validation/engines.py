@@ -45,6 +45,8 @@ LINEARIZATION_TOLERANCE = 1e-6
 #: An engine's status when it raised or its process died: its row keeps what was measured
 #: before, ``reason`` says why, and the command exits 4 after writing every other row.
 CRASHED = "crashed"
+#: An engine's status when the command was interrupted before its checks finished.
+INTERRUPTED = "interrupted"
 #: Throughput batch (realisations) and duration (s) per profile name (default: quick's).
 THROUGHPUT = {"smoke": (8, 0.2), "quick": (64, 1.0), "paper": (256, 2.0)}
 
@@ -301,16 +303,50 @@ def compare_engines(
     checks, its process start included) does, and the result states ``jobs``.
     ``progress(line)`` is told each step.
     """
-    from functools import partial
-
-    from cipcore.driver import default_threads
-    from cipcore.registry import registered_at_runtime
-    from validation.engine_jobs import EngineJob, run_side_by_side
-
     prof = _profile(setting.profile, setting.seed)
-    threads, jobs = setting.threads, setting.jobs
     say = progress or (lambda line: None)
     rows: dict[str, dict[str, Any]] = {}
+    jobs = {"workers": 1}
+    try:
+        _throughputs(names, prof, setting.threads, say, rows)
+        _checks(names, prof, setting, say, rows, jobs)
+        interrupted = False
+    except KeyboardInterrupt:
+        interrupted = True
+    for n in names:  # an engine whose checks did not finish: what was measured, and why
+        if rows.get(n, {}).get("status") is None:
+            why = "the command was interrupted before its checks finished"
+            rows[n] = {**rows.get(n, {"engine": n}), "status": INTERRUPTED, "reason": why}
+    ordered = [rows[n] for n in names]
+    base = next((r for r in ordered if r["engine"] == SPEED_BASELINE and "throughput" in r), None)
+    for r in ordered:
+        if base is not None and "throughput" in r:
+            r["throughput"]["ratio_to_" + SPEED_BASELINE] = (
+                r["throughput"]["realization_steps_per_s"]
+                / base["throughput"]["realization_steps_per_s"]
+            )
+    verdicts = [r["status"] for r in ordered if _ran(r)]
+    results = {"profile": prof.name, "seed": prof.seed, "engines": ordered,
+               "jobs": jobs["workers"], "status": worst(verdicts) if verdicts else INCONCLUSIVE,
+               "crashed": [r["engine"] for r in ordered if r["status"] == CRASHED]}  # fmt: skip
+    if interrupted:
+        raise EnginesInterrupted({**results, "partial": True})
+    return results
+
+
+class EnginesInterrupted(KeyboardInterrupt):
+    """:func:`compare_engines` was interrupted; ``results`` holds every finished engine's
+    row and, for the others, what was measured (status :data:`INTERRUPTED`)."""
+
+    def __init__(self, results: dict[str, Any]) -> None:
+        super().__init__("interrupted")
+        self.results = results
+
+
+def _throughputs(names: list[str], prof: Profile, threads: int | None, say,
+                 rows: dict[str, dict[str, Any]]) -> None:  # fmt: skip
+    """Each available engine's throughput, one engine at a time, into ``rows`` (or the
+    row that says why not: skipped, crashed)."""
     for n in names:
         reason = availability(n)
         if reason is not None:
@@ -323,34 +359,38 @@ def compare_engines(
             raise
         except Exception as exc:
             rows[n] = _crashed({"engine": n}, exc)
+
+
+def _checks(names: list[str], prof: Profile, setting: EnginesSetting, say,
+            rows: dict[str, dict[str, Any]], jobs: dict[str, int]) -> None:  # fmt: skip
+    """The checks of every engine whose throughput was measured, side by side
+    (``jobs["workers"]`` at a time, set here), each finished row into ``rows`` as it
+    arrives."""
+    from functools import partial
+
+    from cipcore.driver import default_threads
+    from cipcore.registry import registered_at_runtime
+    from validation.engine_jobs import EngineJob, run_side_by_side
+
     ran = [n for n in names if rows[n].get("status") is None]
-    workers = max(1, min(jobs, len(ran)))
+    workers = jobs["workers"] = max(1, min(setting.jobs, len(ran)))
+    threads = setting.threads
     each = threads if threads is not None or workers == 1 else max(1, default_threads() // workers)
     work = partial(engine_checks, profile=prof, threads=each, integrator=setting.integrator,
                    selftest=setting.selftest)  # fmt: skip
     todo = [EngineJob(n, cost=_step_cost(rows[n]), device=rows[n]["capabilities"]["device"],
                       here=registered_at_runtime(n)) for n in ran]  # fmt: skip
     beside = f" ({workers} engines at a time)" if workers > 1 else ""
-    checked = run_side_by_side(todo, work, workers, kept=_kept,
-                               started=lambda n: say(f"engine {n}: checks{beside}"))  # fmt: skip
-    for n, (fields, wall) in checked.items():
+
+    def finished(n: str, fields: Any, wall: float) -> None:
         if isinstance(fields, Exception):
             rows[n] = _crashed(rows[n], fields)
-            continue
+            return
         rows[n] = _joined(rows[n], fields)
         rows[n]["seconds"] = round(rows[n]["stage_seconds"]["throughput"] + wall, 1)
-    ordered = [rows[n] for n in names]
-    base = next((r for r in ordered if r["engine"] == SPEED_BASELINE and "throughput" in r), None)
-    for r in ordered:
-        if base is not None and "throughput" in r:
-            r["throughput"]["ratio_to_" + SPEED_BASELINE] = (
-                r["throughput"]["realization_steps_per_s"]
-                / base["throughput"]["realization_steps_per_s"]
-            )
-    verdicts = [r["status"] for r in ordered if _ran(r)]
-    return {"profile": prof.name, "seed": prof.seed, "engines": ordered, "jobs": workers,
-            "status": worst(verdicts) if verdicts else INCONCLUSIVE,
-            "crashed": [r["engine"] for r in ordered if r["status"] == CRASHED]}  # fmt: skip
+
+    run_side_by_side(todo, work, workers, kept=_kept, finished=finished,
+                     started=lambda n: say(f"engine {n}: checks{beside}"))  # fmt: skip
 
 
 def _kept(error: BaseException) -> bool:
@@ -366,8 +406,9 @@ def _crashed(row: dict[str, Any], error: BaseException) -> dict[str, Any]:
 
 
 def _ran(row: dict[str, Any]) -> bool:
-    """Whether the engine's checks gave a verdict (not skipped here, not crashed)."""
-    return row["status"] not in ("skipped", CRASHED)
+    """Whether the engine's checks gave a verdict (not skipped here, crashed or
+    interrupted)."""
+    return row["status"] not in ("skipped", CRASHED, INTERRUPTED)
 
 
 def _g(v: Any, fmt: str = ".3g") -> str:

@@ -103,7 +103,7 @@ def engines_cases(results: dict) -> list[Case]:
     out: list[Case] = []
     for r in results.get("engines", []):
         suite = f"engines.{r['engine']}"
-        if r["status"] == "skipped":
+        if r["status"] in ("skipped", "interrupted"):
             out.append((suite, suite, r["engine"], "skipped", r.get("reason", ""), ""))
             continue
         if r["status"] == "crashed":

@@ -89,11 +89,12 @@ def engine_versions(names: list[str]) -> dict[str, str]:
 def cmd_engines(a: argparse.Namespace) -> int:
     from cipcore.driver import default_threads
     from cipcore.params import ParameterError
+    from validation.cli.args import interrupt_signals, interrupted_status
     from validation.engines import (
+        EnginesInterrupted,
         EnginesSetting,
         compare_engines,
         parse_engines,
-        write_engine_reports,
     )
 
     given = a.engines  # names of the registry, each once (the "engines" domain)
@@ -111,14 +112,42 @@ def cmd_engines(a: argparse.Namespace) -> int:
     quiet = a.json or a.quiet
     say = (lambda line: None) if quiet else (lambda line: print(line, file=sys.stderr))
     started = run_record()
-    # an engine's import banner (warp's) must not corrupt the JSON on stdout
-    with stdout_to_stderr() if a.json else contextlib.nullcontext():
-        setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
-                                 a.integrator, a.selftest)  # fmt: skip
-        results = compare_engines(names, setting, progress=say)
-    env = run_environment()  # versions, platform, fingerprint: computed once
-    versions = {**env["versions"], **engine_versions(names)}
-    results["run"] = {**run_record(started), "versions": versions}
+    setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
+                             a.integrator, a.selftest)  # fmt: skip
+    stopped = None  # (signal name, exit status) when interrupted: the finished rows are kept
+    with interrupt_signals() as got:  # a later signal cannot break off the writing
+        # an engine's import banner (warp's) must not corrupt the JSON on stdout
+        with stdout_to_stderr() if a.json else contextlib.nullcontext():
+            try:
+                results = compare_engines(names, setting, progress=say)
+            except EnginesInterrupted as exc:
+                results, stopped = exc.results, interrupted_status(got)
+        env = run_environment()  # versions, platform, fingerprint: computed once
+        versions = {**env["versions"], **engine_versions(names)}
+        results["run"] = {**run_record(started), "versions": versions}
+        _write(a, results, env, out, junit)
+    if stopped is not None:
+        done = [r["engine"] for r in results["engines"] if r["status"] != "interrupted"]
+        print(f"cip-validate: interrupted by {stopped[0]}: kept {len(done)} of "
+              f"{len(results['engines'])} engines ({', '.join(done) or 'none'}) in "
+              f"{out / 'results.json'} (partial)", file=sys.stderr)  # fmt: skip
+        return stopped[1]
+    # an engine that raised or whose process died (an --engine-cmd program that exits) is
+    # a row of its own, "crashed" with the reason, and every other row is written
+    rows = {r["engine"]: r for r in results["engines"]}
+    for name in results["crashed"]:
+        print(f"cip-validate: an engine crashed: {name}: {rows[name]['reason']}", file=sys.stderr)
+    if results["crashed"]:
+        from validation.cli.exitcodes import EXIT_CRASH
+
+        return EXIT_CRASH
+    return EXIT_OK if results["status"] != "fail" else EXIT_FAIL
+
+
+def _write(a: argparse.Namespace, results: dict, env: dict, out, junit) -> None:
+    """The reports in ``out``, the JUnit file, and the JSON document or the table on stdout."""
+    from validation.engines import write_engine_reports
+
     write_engine_reports(results, out, figures=not a.no_figures)
     if junit:
         from validation.cli.junit import engines_cases, write_junit
@@ -136,22 +165,12 @@ def cmd_engines(a: argparse.Namespace) -> int:
     else:
         _print_table(results["engines"])
         print(f"report: {out / 'report.md'}")
-    # an engine that raised or whose process died (an --engine-cmd program that exits) is
-    # a row of its own, "crashed" with the reason, and every other row is written above
-    rows = {r["engine"]: r for r in results["engines"]}
-    for name in results["crashed"]:
-        print(f"cip-validate: an engine crashed: {name}: {rows[name]['reason']}", file=sys.stderr)
-    if results["crashed"]:
-        from validation.cli.exitcodes import EXIT_CRASH
-
-        return EXIT_CRASH
-    return EXIT_OK if results["status"] != "fail" else EXIT_FAIL
 
 
 def _print_table(rows: list[dict]) -> None:
     """One line per engine: verdict, distance, throughput (or why it did not run)."""
     for r in rows:
-        if r["status"] in ("skipped", "crashed"):
+        if r["status"] in ("skipped", "crashed", "interrupted"):
             print(f"{r['engine']:12s} {r['status']}: {r['reason']}")
             continue
         tp = r["throughput"]
