@@ -193,3 +193,13 @@ def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
     while _marked(mark) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert _marked(mark) == []
+
+
+def test_a_job_process_does_not_let_jax_take_the_device():
+    """JAX's preallocation (75 % of a GPU) is off in a job's process unless the user set it
+    (the job's process has the environment of the forkserver, which is this process's when
+    its first pool started: pytest's, where it is not set)."""
+    if "XLA_PYTHON_CLIENT_PREALLOCATE" in os.environ:
+        pytest.skip("XLA_PYTHON_CLIENT_PREALLOCATE is set in this environment")
+    read = "__import__('os').environ.get('XLA_PYTHON_CLIENT_PREALLOCATE')"
+    assert run_side_by_side([EngineJob(read)], eval, 2)[read][0] == "false"
