@@ -53,7 +53,7 @@ def test_a_process_that_exits_or_is_killed_names_the_engine():
 
 
 def test_accelerator_jobs_run_one_at_a_time_and_cpu_jobs_side_by_side():
-    a, b = SLEEP.format(s=0.4), SLEEP.format(s=0.4) + " "
+    a, b = SLEEP.format(s=2.0), SLEEP.format(s=2.0) + " "  # 2 s: beyond a process's start
     gpu = run_side_by_side([EngineJob(a, device="gpu"), EngineJob(b, device="gpu")], eval, 2)
     (s1, _, e1), (s2, _, e2) = (v for v, _ in gpu.values())
     assert s2 >= e1 or s1 >= e2  # never both at once
@@ -78,12 +78,13 @@ def test_a_failure_stops_the_jobs_still_running(tmp_path):
 
 def test_engines_side_by_side_give_the_numbers_of_one_at_a_time():
     """`cip-validate engines --jobs 2` against `--jobs 1`: every check the same, value for
-    value; the throughput is measured first in either case (one engine at a time)."""
+    value, though the engines get other thread counts; the throughput is measured first in
+    either case (one engine at a time)."""
     from validation.engines import EnginesSetting, compare_engines
 
     names = ["reduced", "mujoco"]
-    one, two = (compare_engines(names, EnginesSetting("smoke", threads=1, jobs=j))
-                for j in (1, 2))  # fmt: skip
+    # threads None: one at a time every core, side by side cores // jobs each
+    one, two = (compare_engines(names, EnginesSetting("smoke", jobs=j)) for j in (1, 2))
     assert (one["jobs"], two["jobs"]) == (1, 2)
     for a, b in zip(one["engines"], two["engines"], strict=True):
         assert a["engine"] == b["engine"] and a["status"] == b["status"] == "pass"
@@ -158,21 +159,26 @@ def _marked(mark: str) -> list[int]:
 @pytest.mark.skipif(not os.path.isdir("/proc"), reason="needs /proc to find the processes")
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
-    """SIGINT or SIGTERM while two engines are checked side by side: the command ends within
-    seconds with 130 or 143, no engine process (nor the forkserver) outlives it, and
-    results.json keeps what was measured (partial: each engine's throughput, its status
-    "interrupted")."""
+    """SIGINT or SIGTERM while MuJoCo is checked in a process of its own and an engine in
+    another program (the chunk-protocol example) in the command's: the command ends within
+    seconds with 130 or 143, no engine process (nor the forkserver, nor the example's
+    processes) outlives it, and results.json keeps what was measured (partial: each
+    engine's throughput; an engine whose checks did not finish is "interrupted")."""
     import json
+    import re
+    import shlex
     import signal
     import subprocess
     import sys
     import uuid
+    from pathlib import Path
 
+    example = Path(__file__).resolve().parents[1] / "examples" / "chunk_engine.py"
     mark = f"CIPVAL_TEST_MARK={uuid.uuid4().hex}"
     env = {**os.environ, mark.split("=")[0]: mark.split("=")[1]}
-    cmd = [sys.executable, "-m", "validation.cli.main", "engines", "--engines",
-           "mujoco,bullet", "--profile", "smoke", "--no-figures", "--jobs", "2",
-           "--out", str(tmp_path)]  # fmt: skip
+    cmd = [sys.executable, "-m", "validation.cli.main", "engines", "--engines", "mujoco",
+           "--engine-cmd", shlex.join([sys.executable, str(example)]), "--profile", "quick",
+           "--no-figures", "--jobs", "2", "--out", str(tmp_path)]  # fmt: skip
     proc = subprocess.Popen(cmd, env=env, stderr=subprocess.PIPE, text=True)
     lines = []
     for line in proc.stderr:  # wait until both engines' checks have started
@@ -180,14 +186,15 @@ def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
         if sum("checks" in x for x in lines) == 2:
             break
     time.sleep(1.0)
-    assert len(_marked(mark)) >= 3  # the command, the forkserver, the engines
+    assert len(_marked(mark)) >= 3  # the command, the forkserver, MuJoCo's process, ...
     proc.send_signal(getattr(signal, sig))
     err = proc.stderr.read()
-    assert proc.wait(timeout=30) == {"SIGINT": 130, "SIGTERM": 143}[sig]
-    assert f"interrupted by {sig}: kept 0 of 2 engines" in err
+    assert proc.wait(timeout=30) == {"SIGINT": 130, "SIGTERM": 143}[sig], err
+    assert re.search(rf"interrupted by {sig}: kept [01] of 2 engines", err), err
     doc = json.loads((tmp_path / "results.json").read_text())
-    assert doc["partial"] is True
-    assert [r["status"] for r in doc["engines"]] == ["interrupted", "interrupted"]
+    rows = {r["engine"]: r for r in doc["engines"]}
+    assert doc["partial"] is True and rows["command"]["status"] == "interrupted"
+    assert rows["mujoco"]["status"] in ("interrupted", "pass")
     assert all(r["throughput"]["realization_steps_per_s"] > 0 for r in doc["engines"])
     deadline = time.monotonic() + 10
     while _marked(mark) and time.monotonic() < deadline:
@@ -195,11 +202,36 @@ def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
     assert _marked(mark) == []
 
 
+def test_an_error_the_parent_cannot_rebuild_and_an_exit_become_engine_job_errors():
+    """A job that raises an exception whose class does not pickle, or calls sys.exit, is an
+    EngineJobError with its text, never a SystemExit here."""
+    unpicklable = ("exec('class E(Exception):\\n def __init__(s, a, b): super().__init__(a)"
+                   "\\nraise E(1, 2)')")  # fmt: skip
+    leave = "__import__('sys').exit(0)"
+    out = run_side_by_side([EngineJob(unpicklable), EngineJob(leave)], eval, 2,
+                           kept=lambda e: True)  # fmt: skip
+    assert isinstance(out[unpicklable][0], EngineJobError) and "E: 1" in str(out[unpicklable][0])
+    assert isinstance(out[leave][0], EngineJobError) and "SystemExit" in str(out[leave][0])
+    with pytest.raises(EngineJobError, match="SystemExit"):
+        run_side_by_side([EngineJob(leave)], eval, 2)
+
+
+def test_an_interrupt_keeps_the_answers_already_in():
+    """A job here is interrupted after a job in a process finished: ``finished`` has the
+    finished one's value before the interrupt ends the call."""
+    got: dict = {}
+    stop = "__import__('time').sleep(2.0) or (_ for _ in ()).throw(KeyboardInterrupt)"
+    with pytest.raises(KeyboardInterrupt):
+        run_side_by_side([EngineJob("6 * 7"), EngineJob(stop, here=True)], eval, 2,
+                         finished=lambda n, v, s: got.update({n: v}))  # fmt: skip
+    assert got == {"6 * 7": 42}
+
+
 def test_a_job_process_does_not_let_jax_take_the_device():
     """JAX's preallocation (75 % of a GPU) is off in a job's process unless the user set it
     (the job's process has the environment of the forkserver, which is this process's when
     its first pool started: pytest's, where it is not set)."""
-    if "XLA_PYTHON_CLIENT_PREALLOCATE" in os.environ:
-        pytest.skip("XLA_PYTHON_CLIENT_PREALLOCATE is set in this environment")
+    if os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "false") != "false":
+        pytest.skip("XLA_PYTHON_CLIENT_PREALLOCATE is set otherwise in this environment")
     read = "__import__('os').environ.get('XLA_PYTHON_CLIENT_PREALLOCATE')"
     assert run_side_by_side([EngineJob(read)], eval, 2)[read][0] == "false"

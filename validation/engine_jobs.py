@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import pickle
 import signal
 import time
 from collections.abc import Callable
@@ -73,20 +74,36 @@ SHARED_DEVICE_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 
 
 def _child(conn: Connection, work: Callable[[str], Any], name: str) -> None:
-    """A job's process: ``work(name)`` sent back as ("ok", value) or ("error", exception)."""
+    """A job's process: ``work(name)`` sent back as ("ok", value, seconds) or ("error",
+    exception, seconds); ``seconds``: the work's wall time here.
+
+    Only what this process can rebuild from its pickle is sent as it is: an exception
+    whose class cannot be rebuilt (a two-argument ``__init__``), or one that is not an
+    :class:`Exception` (``SystemExit``, a ``KeyboardInterrupt`` from a signal to this
+    process alone), goes back as an :class:`EngineJobError` with its text.
+    """
     die_with_parent()
     for key, value in SHARED_DEVICE_ENV.items():
         os.environ.setdefault(key, value)
+    t0 = time.perf_counter()
     try:
         out: tuple = ("ok", work(name))
     except BaseException as exc:  # every failure goes back to the parent
-        out = ("error", exc)
+        out = ("error", exc if isinstance(exc, Exception) else _text(name, exc))
+    out = (*out, time.perf_counter() - t0)
     try:
-        conn.send(out)
-    except Exception:  # the exception (or value) does not pickle: its text does
-        conn.send(("error", EngineJobError(f"{type(out[1]).__name__}: {out[1]}")))
+        data = pickle.dumps(out)
+        pickle.loads(data)  # what the parent will do: a class it cannot rebuild fails here
+    except Exception:
+        data = pickle.dumps(("error", _text(name, out[1]), out[2]))
+    try:
+        conn.send_bytes(data)
     finally:
         conn.close()
+
+
+def _text(name: str, error: object) -> EngineJobError:
+    return EngineJobError(f"engine {name}: {type(error).__name__}: {error}")
 
 
 def _died(name: str, code: int | None) -> EngineJobError:
@@ -114,8 +131,8 @@ def run_side_by_side(
     finished: Callable[[str, Any, float], None] | None = None,
 ) -> dict[str, tuple[Any, float]]:  # fmt: skip
     """``{job.name: (work(job.name), seconds)}``, at most ``workers`` jobs at a time (see
-    the module docstring); ``seconds``: from the job's start (its process's included) to
-    its value here.
+    the module docstring); ``seconds``: the wall time of ``work`` (in the job's process;
+    0 for one that died).
 
     ``work`` must pickle (a module-level function or a :func:`functools.partial` of
     one).  ``started(name)`` is called as each job starts.  ``kept(error)``: True where a
@@ -124,9 +141,6 @@ def run_side_by_side(
     ends it.  ``finished(name, value, seconds)`` is called as each value arrives, so that a
     caller interrupted later keeps what finished.  ``workers`` 1 runs every job here, one
     after the other, in the given order.
-
-    The function is long because it owns the processes from their start to their end:
-    starting, collecting and stopping share its state.
     """
     say = started or (lambda name: None)
     done = finished or (lambda name, value, seconds: None)
@@ -142,56 +156,127 @@ def run_side_by_side(
             out[j.name] = _here(j, work, say, failed)
             done(j.name, *out[j.name])
         return out
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
-    pending = sorted((j for j in jobs if not j.here), key=lambda j: -j.cost)
+    pool = _Processes(workers, work, say, failed, done)
     here = [j for j in jobs if j.here]
-    running: dict[Connection, tuple[EngineJob, Any, float]] = {}
-    out: dict[str, tuple[Any, float]] = {}
+    pool.pending = sorted((j for j in jobs if not j.here), key=lambda j: -j.cost)
+    try:
+        pool.start(workers - 1 if here else workers)
+        for j in here:  # the jobs beside it keep running; their answers wait in the pipes
+            pool.out[j.name] = _here(j, work, say, failed)
+            done(j.name, *pool.out[j.name])
+        pool.start(workers)
+        while pool.running:
+            for conn in wait(list(pool.running)):
+                pool.collect(conn)  # type: ignore[arg-type]
+            pool.start(workers)
+    except BaseException:
+        pool.drain()  # the answers already here are kept (``finished``), then every
+        raise  # process still running is stopped
+    finally:
+        _stop([r[1] for r in pool.running.values()])
+    return {j.name: pool.out[j.name] for j in jobs}
 
-    def start(slots: int) -> None:
-        while len(running) < slots and pending:
-            job = _next(pending, [r[0] for r in running.values()])
+
+class _Processes:
+    """The job processes of one :func:`run_side_by_side` call: started from a forkserver,
+    collected as their answers arrive."""
+
+    def __init__(self, workers: int, work, say, failed, done) -> None:
+        self.ctx = multiprocessing.get_context("forkserver")
+        self.ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
+        self.work, self.say, self.failed, self.done = work, say, failed, done
+        self.pending: list[EngineJob] = []
+        self.running: dict[Connection, tuple[EngineJob, Any]] = {}
+        self.out: dict[str, tuple[Any, float]] = {}
+
+    def start(self, slots: int) -> None:
+        """Start pending jobs up to ``slots`` running (one accelerator job at a time)."""
+        while len(self.running) < slots and self.pending:
+            job = _next(self.pending, [r[0] for r in self.running.values()])
             if job is None:
                 return
-            pending.remove(job)
-            parent, child = ctx.Pipe(duplex=False)
-            proc = ctx.Process(target=_child, args=(child, work, job.name),
-                               name=f"cipval-engine-{job.name}", daemon=False)  # fmt: skip
-            say(job.name)
-            t0 = time.perf_counter()
-            proc.start()
-            child.close()  # the child's end lives in the child: its exit closes the pipe
-            running[parent] = (job, proc, t0)
+            self.pending.remove(job)
+            parent, child = self.ctx.Pipe(duplex=False)
+            proc = self.ctx.Process(target=_child, args=(child, self.work, job.name),
+                                    name=f"cipval-engine-{job.name}", daemon=False)  # fmt: skip
+            self.say(job.name)
+            # no interrupt between the fork and the bookkeeping: every started process
+            # is in ``running``, where an interrupt stops it
+            blocked = _block_interrupts()
+            try:
+                proc.start()
+                child.close()  # the child's end lives in the child: its exit closes the pipe
+                self.running[parent] = (job, proc)
+            finally:
+                _unblock(blocked)
 
-    def collect(conn: Connection) -> None:
-        job, proc, t0 = running.pop(conn)
+    def collect(self, conn: Connection) -> None:
+        """A job's answer (or its death) into ``out``; it stays in ``running`` until read."""
+        job, proc = self.running[conn]
+        kind, value, seconds = self._receive(job, proc, conn)
+        del self.running[conn]
+        if kind == "error":
+            value = self.failed(value)
+        self.out[job.name] = (value, seconds)
+        self.done(job.name, value, seconds)
+
+    def drain(self) -> None:
+        """After an interrupt or an error: keep the values that have already arrived."""
         try:
-            kind, value = conn.recv()
-        except EOFError:
-            proc.join()
-            kind, value = "error", _died(job.name, proc.exitcode)
+            ready = wait(list(self.running), timeout=0)
+        except BaseException:
+            return
+        for conn in ready:
+            job, proc = self.running[conn]
+            try:
+                kind, value, seconds = self._receive(job, proc, conn)
+            except BaseException:
+                continue
+            del self.running[conn]
+            if kind == "error":
+                try:
+                    value = self.failed(value)  # kept: the job's value
+                except BaseException:
+                    continue
+            self.out[job.name] = (value, seconds)
+            self.done(job.name, value, seconds)
+
+    @staticmethod
+    def _receive(job: EngineJob, proc, conn: Connection) -> tuple[str, Any, float]:
+        """(kind, value, seconds) of a job whose pipe is ready; its process reaped."""
+        try:
+            kind, value, seconds = pickle.loads(conn.recv_bytes())
+        except EOFError:  # it died without an answer
+            _reap(proc)
+            return "error", _died(job.name, proc.exitcode), 0.0
+        except Exception as exc:  # an answer that cannot be read
+            kind, value, seconds = "error", _text(job.name, exc), 0.0
         finally:
             conn.close()
-        proc.join()
-        if kind == "error":
-            value = failed(value)
-        out[job.name] = (value, time.perf_counter() - t0)
-        done(job.name, *out[job.name])
+        _reap(proc)
+        return kind, value, seconds
 
-    try:
-        start(workers - 1 if here else workers)
-        for j in here:  # the jobs beside it keep running; their answers wait in the pipes
-            out[j.name] = _here(j, work, say, failed)
-            done(j.name, *out[j.name])
-        start(workers)
-        while running:
-            for conn in wait(list(running)):
-                collect(conn)  # type: ignore[arg-type]
-            start(workers)
-    finally:
-        _stop([r[1] for r in running.values()])
-    return {j.name: out[j.name] for j in jobs}
+
+def _block_interrupts() -> set | None:
+    """Block SIGINT and SIGTERM in this thread (the main thread: where they are handled);
+    the set blocked before, or None where signals cannot be blocked."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return None
+    return signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
+def _unblock(before: set | None) -> None:
+    """Restore the mask: a signal that arrived meanwhile is handled now."""
+    if before is not None:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)
+
+
+def _reap(proc) -> None:
+    """Wait for a finished job's process to exit: its answer is in, so it has at most
+    :data:`TERMINATE_GRACE_S` (threads it left behind) before it is stopped."""
+    proc.join(TERMINATE_GRACE_S)
+    if proc.exitcode is None:
+        _stop([proc])
 
 
 def _here(job: EngineJob, work: Callable[[str], Any], say: Callable[[str], None],

@@ -300,7 +300,7 @@ def compare_engines(
     the slowest engine first (per step of one realisation: :func:`_step_cost`).  Without
     ``threads``, an engine checked beside others gets ``cores // jobs`` threads.  The
     checks' numbers do not depend on ``jobs``; an engine's ``seconds`` (throughput +
-    checks, its process start included) does, and the result states ``jobs``.
+    checks, each timed where it ran) does, and the result states ``jobs``.
     ``progress(line)`` is told each step.
     """
     prof = _profile(setting.profile, setting.seed)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 
 from cip.quiet import stdout_to_stderr
@@ -30,7 +31,6 @@ def run_record(started: dict | None = None) -> dict:
     """How a run was made, for its report: the command line, the UTC start, the load
     average (1, 5, 15 min) at start and, given ``started`` (this function's value at the
     start), the wall time and the load at the end."""
-    import os
     import shlex
     import time
     from datetime import UTC, datetime
@@ -114,6 +114,11 @@ def cmd_engines(a: argparse.Namespace) -> int:
     started = run_record()
     setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
                              a.integrator, a.selftest)  # fmt: skip
+    if setting.jobs > 1:  # engines share the device: JAX here must not take 75 % of a GPU
+        from validation.engine_jobs import SHARED_DEVICE_ENV
+
+        for key, value in SHARED_DEVICE_ENV.items():
+            os.environ.setdefault(key, value)
     stopped = None  # (signal name, exit status) when interrupted: the finished rows are kept
     with interrupt_signals() as got:  # a later signal cannot break off the writing
         # an engine's import banner (warp's) must not corrupt the JSON on stdout
@@ -122,10 +127,15 @@ def cmd_engines(a: argparse.Namespace) -> int:
                 results = compare_engines(names, setting, progress=say)
             except EnginesInterrupted as exc:
                 results, stopped = exc.results, interrupted_status(got)
-        env = run_environment()  # versions, platform, fingerprint: computed once
-        versions = {**env["versions"], **engine_versions(names)}
-        results["run"] = {**run_record(started), "versions": versions}
-        _write(a, results, env, out, junit)
+        for _ in range(2):  # a first signal while writing: once more (later ones are ignored)
+            try:
+                env = run_environment()  # versions, platform, fingerprint: computed once
+                versions = {**env["versions"], **engine_versions(names)}
+                results["run"] = {**run_record(started), "versions": versions}
+                _write(a, results, env, out, junit)
+                break
+            except KeyboardInterrupt:
+                stopped = stopped or interrupted_status(got)
     if stopped is not None:
         done = [r["engine"] for r in results["engines"] if r["status"] != "interrupted"]
         print(f"cip-validate: interrupted by {stopped[0]}: kept {len(done)} of "
