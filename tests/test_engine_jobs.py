@@ -53,10 +53,11 @@ def test_a_process_that_exits_or_is_killed_names_the_engine():
 
 
 def test_accelerator_jobs_run_one_at_a_time_and_cpu_jobs_side_by_side():
-    a, b = SLEEP.format(s=2.0), SLEEP.format(s=2.0) + " "  # 2 s: beyond a process's start
+    a, b = SLEEP.format(s=0.5), SLEEP.format(s=0.5) + " "
     gpu = run_side_by_side([EngineJob(a, device="gpu"), EngineJob(b, device="gpu")], eval, 2)
     (s1, _, e1), (s2, _, e2) = (v for v, _ in gpu.values())
     assert s2 >= e1 or s1 >= e2  # never both at once
+    a, b = SLEEP.format(s=2.0), SLEEP.format(s=2.0) + " "  # 2 s: beyond a process's start
     cpu = run_side_by_side([EngineJob(a), EngineJob(b)], eval, 2)
     (s1, _, e1), (s2, _, e2) = (v for v, _ in cpu.values())
     assert s2 < e1 and s1 < e2  # both at once
