@@ -52,15 +52,27 @@ def test_a_process_that_exits_or_is_killed_names_the_engine():
         run_side_by_side([EngineJob(kill), EngineJob("2")], eval, 2)
 
 
-def test_accelerator_jobs_run_one_at_a_time_and_cpu_jobs_side_by_side():
+def _meet(mine: str, other: str) -> str:
+    """A job that leaves file ``mine`` and waits (up to 20 s) for ``other``: True when they
+    met, i.e. both jobs ran at once."""
+    exists = f"__import__('os').path.exists({other!r})"
+    return (
+        f"(open({mine!r}, 'w').close(), [__import__('time').sleep(0.01) for _ in "
+        f"range(2000) if not {exists}], {exists})[-1]"
+    )
+
+
+def test_accelerator_jobs_run_one_at_a_time_and_cpu_jobs_side_by_side(tmp_path):
     a, b = SLEEP.format(s=0.5), SLEEP.format(s=0.5) + " "
     gpu = run_side_by_side([EngineJob(a, device="gpu"), EngineJob(b, device="gpu")], eval, 2)
     (s1, _, e1), (s2, _, e2) = (v for v, _ in gpu.values())
     assert s2 >= e1 or s1 >= e2  # never both at once
-    a, b = SLEEP.format(s=2.0), SLEEP.format(s=2.0) + " "  # 2 s: beyond a process's start
+    a, b = (
+        _meet(str(tmp_path / "a"), str(tmp_path / "b")),
+        _meet(str(tmp_path / "b"), str(tmp_path / "a")),
+    )
     cpu = run_side_by_side([EngineJob(a), EngineJob(b)], eval, 2)
-    (s1, _, e1), (s2, _, e2) = (v for v, _ in cpu.values())
-    assert s2 < e1 and s1 < e2  # both at once
+    assert [v for v, _ in cpu.values()] == [True, True]  # both at once
 
 
 def test_a_failure_stops_the_jobs_still_running(tmp_path):
@@ -186,7 +198,7 @@ def test_an_interrupted_engines_command_leaves_no_engine_process(tmp_path, sig):
         lines.append(line)
         if sum("checks" in x for x in lines) == 2:
             break
-    time.sleep(1.0)
+    time.sleep(0.5)
     assert len(_marked(mark)) >= 3  # the command, the forkserver, MuJoCo's process, ...
     proc.send_signal(getattr(signal, sig))
     err = proc.stderr.read()
@@ -217,15 +229,19 @@ def test_an_error_the_parent_cannot_rebuild_and_an_exit_become_engine_job_errors
         run_side_by_side([EngineJob(leave)], eval, 2)
 
 
-def test_an_interrupt_keeps_the_answers_already_in():
+def test_an_interrupt_keeps_the_answers_already_in(tmp_path):
     """A job here is interrupted after a job in a process finished: ``finished`` has the
     finished one's value before the interrupt ends the call."""
     got: dict = {}
-    stop = "__import__('time').sleep(2.0) or (_ for _ in ()).throw(KeyboardInterrupt)"
+    flag = str(tmp_path / "done")
+    answer = f"open({flag!r}, 'w').close() or 42"  # its value is sent right after
+    wait_then_stop = (f"[__import__('time').sleep(0.01) for _ in range(2000) if not "
+                      f"__import__('os').path.exists({flag!r})], __import__('time').sleep(0.5),"
+                      " (_ for _ in ()).throw(KeyboardInterrupt)")  # fmt: skip
     with pytest.raises(KeyboardInterrupt):
-        run_side_by_side([EngineJob("6 * 7"), EngineJob(stop, here=True)], eval, 2,
+        run_side_by_side([EngineJob(answer), EngineJob(wait_then_stop, here=True)], eval, 2,
                          finished=lambda n, v, s: got.update({n: v}))  # fmt: skip
-    assert got == {"6 * 7": 42}
+    assert got == {answer: 42}
 
 
 def test_a_job_process_does_not_let_jax_take_the_device():
