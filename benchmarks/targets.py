@@ -20,7 +20,13 @@ line shows that and the load average.  Each row says "met" or "NOT MET" against 
 target; nothing is retried or averaged away (Drake's ratio is the best of alternated
 rounds, see :data:`DRAKE_CHILD`).
 
-Usage:  python benchmarks/targets.py [--skip pytest,quick,...] [--json FILE]
+With ``--engines``, one more row at the end: ``cip-validate engines --engines all
+--profile quick --no-figures`` (every engine installed here, side by side as the
+command runs them by default) under 15 minutes, and each engine's wall seconds from
+its report (measured beside the other engines; ``cip-validate engines --jobs 1`` times
+them alone).  Not by default: it takes about 10 minutes with every extra installed.
+
+Usage:  python benchmarks/targets.py [--skip pytest,quick,...] [--engines] [--json FILE]
 """
 
 from __future__ import annotations
@@ -103,6 +109,26 @@ print(json.dumps({t: r * round(duration / p.dt) / s for t, s in best.items()}))
 """
 
 
+def time_engines(seed: int) -> dict:
+    """``cip-validate engines --engines all --profile quick --no-figures`` in a fresh process:
+    its wall seconds, exit status, engines at a time and each engine's seconds (None for
+    one that did not run here) from its report."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as out:
+        cmd = ["cip-validate", "engines", "--engines", "all", "--profile", "quick",
+               "--no-figures", "--seed", str(seed), "--out", out, "--quiet"]  # fmt: skip
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        wall = time.perf_counter() - t0
+        try:
+            doc = json.loads((Path(out) / "results.json").read_text())
+        except (OSError, ValueError):
+            doc = {"engines": []}
+    return {"wall_s": wall, "exit": proc.returncode, "jobs": doc.get("jobs"),
+            "seconds": {r["engine"]: r.get("seconds") for r in doc["engines"]}}  # fmt: skip
+
+
 def _host() -> str:
     """The host's speed now: us per MuJoCo step on one thread / on every core at once."""
     return f"{hostspeed.us_per_step():.3f}/{hostspeed.us_per_step_all_cores():.3f}"
@@ -137,6 +163,9 @@ def main() -> int:
         default="8,2,4",
         help="Drake's realisations,duration (s),rounds of 1 and 2 processes",
     )
+    ap.add_argument("--engines", action="store_true",
+                    help="also time `cip-validate engines --engines all --profile quick` "
+                    "(about 10 minutes)")  # fmt: skip
     ap.add_argument("--json", type=Path, help="also write the rows to this file")
     a = ap.parse_args()
     skip = {s for s in a.skip.split(",") if s}
@@ -212,6 +241,17 @@ def main() -> int:
             _row(rows, f"Drake: 2 processes / 1 ({r} x {duration:g} s, best of {rounds})",
                  f"{ratio:.2f}x ({d['1']:.3g} -> {d['2']:.3g} steps/s; two independent "
                  f"processes {ceiling:.2f}x)", ">= 1.7x", ratio >= 1.7, host, load)  # fmt: skip
+
+    if a.engines:
+        host, load = _host(), hostspeed.load()
+        e = time_engines(a.seed)
+        ran = {k: v for k, v in e["seconds"].items() if v is not None}
+        value = (f"{e['wall_s'] / 60:.1f} min wall, exit {e['exit']}, {len(ran)} engines, "
+                 f"{e['jobs']} at a time")  # fmt: skip
+        _row(rows, "engines --engines all --profile quick", value, "< 15 min",
+             e["exit"] in (0, 1) and e["wall_s"] < 900, host, load)  # fmt: skip
+        print("  each engine's seconds (beside the others): "
+              + ", ".join(f"{k} {v:.0f}" for k, v in ran.items()))  # fmt: skip
 
     print(f"after: host {_host()} us per step, load {hostspeed.load()}")
     if a.json:
