@@ -244,11 +244,16 @@ def test_an_interrupt_keeps_the_answers_already_in(tmp_path):
     assert got == {answer: 42}
 
 
-def test_a_job_process_does_not_let_jax_take_the_device():
-    """JAX's preallocation (75 % of a GPU) is off in a job's process unless the user set it
-    (the job's process has the environment of the forkserver, which is this process's when
-    its first pool started: pytest's, where it is not set)."""
-    if os.environ.get("XLA_PYTHON_CLIENT_PREALLOCATE", "false") != "false":
-        pytest.skip("XLA_PYTHON_CLIENT_PREALLOCATE is set otherwise in this environment")
-    read = "__import__('os').environ.get('XLA_PYTHON_CLIENT_PREALLOCATE')"
-    assert run_side_by_side([EngineJob(read)], eval, 2)[read][0] == "false"
+def test_a_job_process_has_the_environment_of_its_start(monkeypatch):
+    """A job's process sees this process's environment as it is when the job starts (not
+    the forkserver's, started earlier), with JAX's preallocation of 75 % of a GPU off
+    unless it is set."""
+    run_side_by_side([EngineJob("1")], eval, 2)  # the forkserver runs from here on
+    monkeypatch.setenv("CIPVAL_TEST_LATE", "late")
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_PREALLOCATE", raising=False)
+    late, jax = ("__import__('os').environ.get('CIPVAL_TEST_LATE')",
+                 "__import__('os').environ.get('XLA_PYTHON_CLIENT_PREALLOCATE')")  # fmt: skip
+    out = run_side_by_side([EngineJob(late), EngineJob(jax)], eval, 2)
+    assert (out[late][0], out[jax][0]) == ("late", "false")
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_PREALLOCATE", "true")
+    assert run_side_by_side([EngineJob(jax)], eval, 2)[jax][0] == "true"

@@ -73,9 +73,13 @@ class EngineJob:
 SHARED_DEVICE_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 
 
-def _child(conn: Connection, work: Callable[[str], Any], name: str) -> None:
+def _child(conn: Connection, work: Callable[[str], Any], name: str, env: dict) -> None:
     """A job's process: ``work(name)`` sent back as ("ok", value, seconds) or ("error",
     exception, seconds); ``seconds``: the work's wall time here.
+
+    ``env`` is the starting process's environment when the job started, which the job
+    gets (a forkserver's children would otherwise have the environment the forkserver
+    started with), plus :data:`SHARED_DEVICE_ENV` where it does not say otherwise.
 
     Only what this process can rebuild from its pickle is sent as it is: an exception
     whose class cannot be rebuilt (a two-argument ``__init__``), or one that is not an
@@ -83,6 +87,8 @@ def _child(conn: Connection, work: Callable[[str], Any], name: str) -> None:
     process alone), goes back as an :class:`EngineJobError` with its text.
     """
     die_with_parent()
+    os.environ.clear()
+    os.environ.update(env)
     for key, value in SHARED_DEVICE_ENV.items():
         os.environ.setdefault(key, value)
     t0 = time.perf_counter()
@@ -197,7 +203,8 @@ class _Processes:
                 return
             self.pending.remove(job)
             parent, child = self.ctx.Pipe(duplex=False)
-            proc = self.ctx.Process(target=_child, args=(child, self.work, job.name),
+            env = dict(os.environ)
+            proc = self.ctx.Process(target=_child, args=(child, self.work, job.name, env),
                                     name=f"cipval-engine-{job.name}", daemon=False)  # fmt: skip
             self.say(job.name)
             # no interrupt between the fork and the bookkeeping: every started process
