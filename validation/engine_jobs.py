@@ -1,10 +1,10 @@
 """Engines side by side: each engine's checks in a process of its own, ``jobs`` at a time.
 
 One job.  :func:`run_side_by_side` calls ``work(name)`` once per job and returns
-the values and wall seconds by name.  A job runs in a fresh process (started by a forkserver, so no
-process forks a loaded JAX or warp runtime), or in this one where it must
-(:attr:`EngineJob.here`: an engine registered at run time, which another process
-does not know).  The results do not depend on where or beside what a job ran:
+the values and wall seconds by name.  A job runs in a fresh process (started by a
+forkserver, so that no process forks a loaded JAX or warp runtime), or in this one
+where it must (:attr:`EngineJob.here`: an engine registered at run time, which
+another process does not know).  The results do not depend on where or beside what a job ran:
 every draw is fixed by the profile's seed and each engine's checks are
 independent of the threads they get.
 
@@ -18,8 +18,9 @@ Scheduling, from what was measured before:
   beside them.
 
 Every process dies with this one (:mod:`validation.sweeps.lifeline`); on an
-interrupt or an error the processes still running are terminated, so nothing
-keeps computing after the command ends.  A job's exception is raised here as it
+interrupt or an error the answers already in are handed over (``finished``) and
+the processes still running are terminated, so nothing keeps computing after the
+command ends.  A job's exception is raised here as it
 was raised there (its message and type, where it pickles; else a
 :class:`EngineJobError` with its message); a process that dies without an answer
 (a segfault, the kernel's OOM killer) raises :class:`EngineJobError` naming the
