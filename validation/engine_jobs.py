@@ -31,19 +31,18 @@ the run nothing else.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import pickle
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, MutableMapping
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Any
 
-from validation.sweeps.lifeline import die_with_parent
+from validation.sweeps.lifeline import die_with_parent, forkserver_context
 
-__all__ = ["EngineJob", "EngineJobError", "run_side_by_side"]
+__all__ = ["EngineJob", "EngineJobError", "run_side_by_side", "share_device"]
 
 #: seconds a terminated process has to exit before it is killed
 TERMINATE_GRACE_S = 5.0
@@ -74,6 +73,14 @@ class EngineJob:
 SHARED_DEVICE_ENV = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
 
 
+def share_device(environ: MutableMapping[str, str]) -> None:
+    """Add :data:`SHARED_DEVICE_ENV` to ``environ`` where it does not say otherwise: for a
+    process whose engines share an accelerator with others (a job's, or the command's
+    that starts them)."""
+    for key, value in SHARED_DEVICE_ENV.items():
+        environ.setdefault(key, value)
+
+
 def _child(conn: Connection, work: Callable[[str], Any], name: str, env: dict) -> None:
     """A job's process: ``work(name)`` sent back as ("ok", value, seconds) or ("error",
     exception, seconds); ``seconds``: the work's wall time here.
@@ -90,8 +97,7 @@ def _child(conn: Connection, work: Callable[[str], Any], name: str, env: dict) -
     die_with_parent()
     os.environ.clear()
     os.environ.update(env)
-    for key, value in SHARED_DEVICE_ENV.items():
-        os.environ.setdefault(key, value)
+    share_device(os.environ)
     t0 = time.perf_counter()
     try:
         out: tuple = ("ok", work(name))
@@ -163,7 +169,7 @@ def run_side_by_side(
             out[j.name] = _here(j, work, say, failed)
             done(j.name, *out[j.name])
         return out
-    pool = _Processes(workers, work, say, failed, done)
+    pool = _Processes(work, say, failed, done)
     here = [j for j in jobs if j.here]
     pool.pending = sorted((j for j in jobs if not j.here), key=lambda j: -j.cost)
     try:
@@ -188,9 +194,8 @@ class _Processes:
     """The job processes of one :func:`run_side_by_side` call: started from a forkserver,
     collected as their answers arrive."""
 
-    def __init__(self, workers: int, work, say, failed, done) -> None:
-        self.ctx = multiprocessing.get_context("forkserver")
-        self.ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
+    def __init__(self, work, say, failed, done) -> None:
+        self.ctx = forkserver_context()
         self.work, self.say, self.failed, self.done = work, say, failed, done
         self.pending: list[EngineJob] = []
         self.running: dict[Connection, tuple[EngineJob, Any]] = {}

@@ -43,6 +43,19 @@ def _pdeathsig() -> bool:
         return False
 
 
+def forkserver_context():
+    """The multiprocessing context of a pool whose processes die with this one: a
+    forkserver (not fork: forking a process that has loaded a multithreaded runtime,
+    JAX/XLA or warp, can deadlock the child) that imports
+    :mod:`validation.sweeps.forkserver_lifeline` at its start; each process it starts
+    calls :func:`die_with_parent`."""
+    import multiprocessing
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
+    return ctx
+
+
 def die_with_parent(poll_s: float = POLL_S) -> None:
     """End this process when its parent dies (see the module docstring)."""
     parent = os.getppid()

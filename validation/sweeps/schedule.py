@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import time
 from collections.abc import Callable
@@ -15,7 +14,7 @@ from cipcore.registry import get_engine
 from validation.sweeps.evaluate import evaluate_point
 from validation.sweeps.gains import point_gains
 from validation.sweeps.gpu import evaluate_points as evaluate_gpu_points
-from validation.sweeps.lifeline import die_with_parent
+from validation.sweeps.lifeline import die_with_parent, forkserver_context
 from validation.sweeps.store import DirectoryLock, Store, write_dataset
 from validation.sweeps.study import Study, point_key
 
@@ -171,12 +170,9 @@ def run_sweep(
 
 
 def _run_local(workers: int, sd: dict, todo: list[dict], finished, gains: dict) -> None:
-    # forkserver, not fork: forking a process that has loaded a multithreaded
-    # runtime (JAX/XLA for mjx, warp) can deadlock the child
     # every process of the pool dies with this one (validation.sweeps.lifeline)
-    ctx = multiprocessing.get_context("forkserver")
-    ctx.set_forkserver_preload(["validation.sweeps.forkserver_lifeline"])
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=die_with_parent)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=forkserver_context(),
+                               initializer=die_with_parent)  # fmt: skip
     futs: dict = {}
     kept: set = set()
     try:

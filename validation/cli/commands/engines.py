@@ -115,10 +115,9 @@ def cmd_engines(a: argparse.Namespace) -> int:
     setting = EnginesSetting(a.profile, a.seed, a.threads, a.jobs or default_threads(),
                              a.integrator, a.selftest)  # fmt: skip
     if setting.jobs > 1:  # engines share the device: JAX here must not take 75 % of a GPU
-        from validation.engine_jobs import SHARED_DEVICE_ENV
+        from validation.engine_jobs import share_device
 
-        for key, value in SHARED_DEVICE_ENV.items():
-            os.environ.setdefault(key, value)
+        share_device(os.environ)
     stopped = None  # (signal name, exit status) when interrupted: the finished rows are kept
     with interrupt_signals() as got:  # a later signal cannot break off the writing
         # an engine's import banner (warp's) must not corrupt the JSON on stdout
