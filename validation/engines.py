@@ -111,28 +111,6 @@ def _value(checks: list[Check], name: str, key: str) -> Any:
     return None
 
 
-def validate_engine(
-    name: str, profile: Profile | str = "quick", seed: int | None = None,
-    threads: int | None = None, integrator: str | None = None, selftest: bool = False,
-) -> dict[str, Any]:  # fmt: skip
-    """Every check of one engine (see the module docstring); ``seed`` replaces the profile's.
-
-    ``selftest`` also injects the fault catalogue at a rigid-body engine's boundary
-    (:func:`validation.faults.selftest.run_selftest`, seed 1, 2 realisations) and reports
-    how many applicable faults its checks flag.  The throughput first, then
-    :func:`engine_checks`.
-    """
-    prof = _profile(profile, seed)
-    reason = availability(name)
-    if reason is not None:
-        return _skipped(name, reason)
-    t0 = time.perf_counter()
-    row = _joined(engine_throughput(name, prof, threads),
-                  engine_checks(name, prof, threads, integrator, selftest))  # fmt: skip
-    row["seconds"] = round(time.perf_counter() - t0, 1)
-    return row
-
-
 def _joined(start: dict[str, Any], checks: dict[str, Any]) -> dict[str, Any]:
     """An engine's row: :func:`engine_throughput`'s fields, then :func:`engine_checks`'s."""
     stages = {**start["stage_seconds"], **checks["stage_seconds"]}
@@ -292,7 +270,11 @@ class EnginesSetting:
 def compare_engines(
     names: list[str], setting: EnginesSetting = EnginesSetting(), progress: Any = None
 ) -> dict[str, Any]:
-    """Rows of :func:`validate_engine` for ``names`` plus speed ratios to MuJoCo on the CPU.
+    """One row per engine of ``names`` (:func:`engine_throughput`'s fields, then
+    :func:`engine_checks`'s, or why it has no verdict) plus speed ratios to MuJoCo on the
+    CPU.  ``setting.selftest`` also injects the fault catalogue at a rigid-body engine's
+    boundary (:func:`validation.faults.selftest.run_selftest`, seed 1, 2 realisations) and
+    reports how many applicable faults its checks flag.
 
     Every engine's throughput is measured first, one engine at a time in this process, so
     that no engine is timed beside another; then the checks run ``jobs`` engines at a
@@ -306,10 +288,12 @@ def compare_engines(
     prof = _profile(setting.profile, setting.seed)
     say = progress or (lambda line: None)
     rows: dict[str, dict[str, Any]] = {}
-    jobs = {"workers": 1}
+    workers = 1
     try:
         _throughputs(names, prof, setting.threads, say, rows)
-        _checks(names, prof, setting, say, rows, jobs)
+        ran = [n for n in names if rows[n].get("status") is None]
+        workers = max(1, min(setting.jobs, len(ran)))
+        _checks(ran, prof, setting, workers, say, rows)
         interrupted = False
     except KeyboardInterrupt:
         interrupted = True
@@ -325,9 +309,9 @@ def compare_engines(
                 r["throughput"]["realization_steps_per_s"]
                 / base["throughput"]["realization_steps_per_s"]
             )
-    verdicts = [r["status"] for r in ordered if _ran(r)]
+    verdicts = [r["status"] for r in ordered if has_verdict(r)]
     results = {"profile": prof.name, "seed": prof.seed, "engines": ordered,
-               "jobs": jobs["workers"], "status": worst(verdicts) if verdicts else INCONCLUSIVE,
+               "jobs": workers, "status": worst(verdicts) if verdicts else INCONCLUSIVE,
                "crashed": [r["engine"] for r in ordered if r["status"] == CRASHED]}  # fmt: skip
     if interrupted:
         raise EnginesInterrupted({**results, "partial": True})
@@ -355,25 +339,22 @@ def _throughputs(names: list[str], prof: Profile, threads: int | None, say,
         say(f"engine {n}: throughput")
         try:
             rows[n] = engine_throughput(n, prof, threads)
-        except ParameterError:
-            raise
         except Exception as exc:
+            if not _kept(exc):
+                raise
             rows[n] = _crashed({"engine": n}, exc)
 
 
-def _checks(names: list[str], prof: Profile, setting: EnginesSetting, say,
-            rows: dict[str, dict[str, Any]], jobs: dict[str, int]) -> None:  # fmt: skip
-    """The checks of every engine whose throughput was measured, side by side
-    (``jobs["workers"]`` at a time, set here), each finished row into ``rows`` as it
-    arrives."""
+def _checks(ran: list[str], prof: Profile, setting: EnginesSetting, workers: int, say,
+            rows: dict[str, dict[str, Any]]) -> None:  # fmt: skip
+    """The checks of the engines ``ran`` (their throughput measured), ``workers`` at a
+    time, each finished row into ``rows`` as it arrives."""
     from functools import partial
 
     from cipcore.driver import default_threads
     from cipcore.registry import registered_at_runtime
     from validation.engine_jobs import EngineJob, run_side_by_side
 
-    ran = [n for n in names if rows[n].get("status") is None]
-    workers = jobs["workers"] = max(1, min(setting.jobs, len(ran)))
     threads = setting.threads
     each = threads if threads is not None or workers == 1 else max(1, default_threads() // workers)
     work = partial(engine_checks, profile=prof, threads=each, integrator=setting.integrator,
@@ -405,9 +386,9 @@ def _crashed(row: dict[str, Any], error: BaseException) -> dict[str, Any]:
     return {**row, "status": CRASHED, "reason": f"{type(error).__name__}: {error}"}
 
 
-def _ran(row: dict[str, Any]) -> bool:
-    """Whether the engine's checks gave a verdict (not skipped here, crashed or
-    interrupted)."""
+def has_verdict(row: dict[str, Any]) -> bool:
+    """Whether an engine's row has the verdict of its checks (it was not skipped here, did
+    not crash and was not interrupted)."""
     return row["status"] not in ("skipped", CRASHED, INTERRUPTED)
 
 
@@ -501,7 +482,7 @@ def markdown(results: dict[str, Any]) -> str:
         "|" + "---|" * 19,
     ]
     for r in results["engines"]:
-        if not _ran(r):
+        if not has_verdict(r):
             lines.append(f"| {r['engine']} | {r['status']} | " + " | ".join(["n/a"] * 16)
                          + f" | {r['status']}: {r['reason'].replace('|', '/')} |")  # fmt: skip
             continue
@@ -525,7 +506,7 @@ def markdown(results: dict[str, Any]) -> str:
         )
     lines += reproduced_table(results)
     for r in results["engines"]:
-        if not _ran(r):
+        if not has_verdict(r):
             continue
         c = r["capabilities"]
         lines += ["", f"## {r['engine']}", ""]
@@ -565,7 +546,7 @@ def reproduced_table(results: dict[str, Any]) -> list[str]:
     reduced model).
     """
     rows = [r for r in results["engines"]
-            if _ran(r) and r["capabilities"].get("rigid_body")]  # fmt: skip
+            if has_verdict(r) and r["capabilities"].get("rigid_body")]  # fmt: skip
     if not rows:
         return []
     gains = []
@@ -609,7 +590,7 @@ def speed_accuracy_figure(results: dict[str, Any], path: Path) -> Path | None:
     import matplotlib.pyplot as plt
 
     pts = [r for r in results["engines"]
-           if _ran(r) and r["engine"] != REFERENCE]  # fmt: skip
+           if has_verdict(r) and r["engine"] != REFERENCE]  # fmt: skip
     if not pts:
         return None
     fig, ax = plt.subplots(figsize=(5.5, 4))

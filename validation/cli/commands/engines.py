@@ -177,9 +177,11 @@ def _write(a: argparse.Namespace, results: dict, env: dict, out, junit) -> None:
 
 
 def _print_table(rows: list[dict]) -> None:
-    """One line per engine: verdict, distance, throughput (or why it did not run)."""
+    """One line per engine: verdict, distance, throughput (or why it has no verdict)."""
+    from validation.engines import has_verdict
+
     for r in rows:
-        if r["status"] in ("skipped", "crashed", "interrupted"):
+        if not has_verdict(r):
             print(f"{r['engine']:12s} {r['status']}: {r['reason']}")
             continue
         tp = r["throughput"]
