@@ -261,7 +261,7 @@ def simbody_loop(case: NativeCase) -> float:
     managers = []
     for r in range(case.n_realizations):
         q, u = np.empty(len(qi)), np.empty(len(qi))
-        q[qi], u[qi] = case.state[r, b.mj_q], case.state[r, b.mj_u]
+        q[qi], u[qi] = case.state[r, b.mj_q], case.state[r, b.mj_v]
         mgr = om.manager(q, u, dt, 0.0)
         s = mgr.getState()
         for a, f in zip(om.actuators, np.r_[f_cart[r], t_hinge[r]], strict=True):
@@ -308,7 +308,7 @@ def dart_loop(case: NativeCase) -> float:
     f_cart, t_hinge = held_forces(case)
     elapsed = 0.0
     for r in range(case.n_realizations):
-        q, v = case.state[r, b.mj_q], case.state[r, b.mj_v]  # (C, 2)
+        q, v = case.state[r, b.mj_qc], case.state[r, b.mj_vc]  # (C, 2)
         for i, skel in enumerate(skels):
             skel.setPositions(q[i])
             skel.setVelocities(v[i])
@@ -353,8 +353,8 @@ def newton_loop(case: NativeCase) -> float:
     shape = (R, b.nc, 2)
     s0, s1 = b.states
     f_cart, t_hinge = held_forces(case)
-    s0.joint_q.numpy().reshape(shape)[:] = case.state[:, b.mj_q]
-    s0.joint_qd.numpy().reshape(shape)[:] = case.state[:, b.mj_v]
+    s0.joint_q.numpy().reshape(shape)[:] = case.state[:, b.mj_qc]
+    s0.joint_qd.numpy().reshape(shape)[:] = case.state[:, b.mj_vc]
     joint_f = b.control.joint_f.numpy().reshape(shape)
     joint_f[..., 0], joint_f[..., 1] = f_cart, t_hinge
     step, control, dt = b.solver.step, b.control, b.dt

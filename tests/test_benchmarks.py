@@ -1,6 +1,7 @@
 """The benchmark scripts' host-speed probe (``benchmarks/hostspeed.py``), printed beside
 every time the benchmarks measure: a positive, finite number in its documented line; and
-the targets' script (``benchmarks/targets.py``): its rows and verdicts."""
+the targets' script (``benchmarks/targets.py``): its rows and verdicts; and each engine's
+own loop that ``benchmarks/bench_engines.py --native`` times (``benchmarks/native_loops.py``)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,8 @@ import re
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the probe at 50 steps per realisation instead of 2000: these tests check the lines' form
@@ -94,3 +97,37 @@ def test_bench_run_against_an_unknown_commit_is_one_line():
     (line,) = out.stderr.strip().splitlines()
     assert line.startswith("bench_run.py: --against no-such-ref: ")
     assert _worktrees() == before
+
+
+def _native_loops():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import native_loops
+
+    return native_loops
+
+
+def test_every_registered_engine_has_a_native_loop_or_a_reason():
+    """``bench_engines.py --native``: each engine's own loop, or why there is none."""
+    from cipcore.registry import engine_names
+
+    nl = _native_loops()
+    missing = [n for n in engine_names() if n not in nl.NATIVE_LOOPS and n not in nl.NOT_ISOLATED]
+    assert not missing, f"no native loop and no reason for {missing}"
+
+
+@pytest.mark.parametrize("name", sorted(_native_loops().NATIVE_LOOPS))
+def test_each_native_loop_steps_the_adapters_model(name):
+    """Each engine's own loop runs on the coupled model its adapter builds (the one
+    ``bench_engines.py`` times; two realisations, three steps) and returns the seconds of
+    its steps: the loops are benchmark code that nothing else runs, so a renamed adapter
+    attribute breaks them silently (DART's, Newton's and Simbody's did once)."""
+    from cipcore.params import BalanceParams
+    from cipcore.registry import availability, get_engine
+
+    why = availability(name)
+    if why is not None:
+        pytest.skip(why)
+    nl = _native_loops()
+    case = nl.make_case(get_engine(name), "coupled", BalanceParams(beta=21.032), 2, 3, 1e-3)
+    seconds = nl.native_loop(name)(case)
+    assert 0.0 < seconds < 60.0, (name, seconds)
