@@ -193,3 +193,44 @@ def test_the_engines_run_records_each_engines_package_versions():
     got = engine_versions(["dart", "mujoco", "no-such-engine"])
     assert got["dartpy"] == dartpy.__version__, got
     assert set(got) - {"commit"} == {"dartpy"}, got
+
+
+def test_simbody_failing_mid_chunk_keeps_the_steps_before_it() -> None:
+    """A ``Manager.integrate`` that raises at step 3 of realisation 0: that realisation's
+    first two steps are those of a clean run, NaN from step 3 on, one warning; the other
+    realisation is untouched."""
+    engine_or_skip("simbody")
+    from cip.engines.simbody import SimbodyRollout
+    from cip.runner import CIPRunner
+
+    def runner(fail_at: int | None) -> tuple[np.ndarray, int]:
+        r = CIPRunner("coupled", P, CIPParams.from_reduced(P), 2, 1e-3, threads=1,
+                      backend=SimbodyRollout)  # fmt: skip
+        b, calls = r.backend, [0]
+        make = b.osim_model.manager
+
+        class Failing:
+            def __init__(self, mgr):
+                self.mgr = mgr
+
+            def getState(self):  # OpenSim's name
+                return self.mgr.getState()
+
+            def integrate(self, t):
+                calls[0] += 1
+                if calls[0] == fail_at:
+                    raise RuntimeError("projection failed")
+                return self.mgr.integrate(t)
+
+        b.osim_model.manager = lambda *a: Failing(make(*a)) if fail_at else make(*a)
+        ctrl = np.zeros((2, 6, r.m.nu))
+        out = np.empty((2, 6, r.state.shape[1]))
+        b(r.state.copy(), ctrl, out)
+        return out, b.warnings()
+
+    clean, w0 = runner(None)
+    failed, w1 = runner(3)
+    assert (w0, w1) == (0, 1)
+    np.testing.assert_array_equal(failed[0, :2], clean[0, :2])
+    assert np.isnan(failed[0, 2:, 1:]).all() and np.isfinite(failed[0, :2]).all()
+    np.testing.assert_array_equal(failed[1], clean[1])

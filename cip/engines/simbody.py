@@ -203,6 +203,7 @@ class SimbodyRollout(ModelRollout):
         R, n = ctrl.shape[:2]
         u_ctrl = self.begin(state, ctrl, out)  # (R, n, C) cart forces, N
         qi = om.q_index
+        setters = [a.setOverrideActuation for a in om.actuators]  # carts, then hinges
         for r in range(R):
             if not np.all(np.isfinite(state[r])):
                 out[r, :, 1:] = np.nan
@@ -214,23 +215,28 @@ class SimbodyRollout(ModelRollout):
                 self.steps[r] = 0
             mgr = self.managers[r]
             x, v = state[r, self.mj_q].copy(), state[r, self.mj_v].copy()  # carts, then hinges
+            qu = np.empty((n, 2, 2 * nc))  # Simbody's q and u after each step
+            done = n
             for k in range(n):
                 f_cart, t_hinge = generalized_forces(
                     self.geometry, x[nc:], v[:nc], v[nc:], u_ctrl[r, k]
                 )
                 s = mgr.getState()
-                for a, f in zip(om.actuators, np.r_[f_cart, t_hinge], strict=True):
-                    a.setOverrideActuation(s, float(f))
+                for set_force, f in zip(setters, f_cart.tolist() + t_hinge.tolist(), strict=True):
+                    set_force(s, f)
                 self.steps[r] += 1
                 try:
                     s = mgr.integrate(self.steps[r] * dt)
                 except RuntimeError:  # Simbody failed (e.g. the projection): diverged
-                    self.diverged(out, r, k)
+                    done = k
                     self.managers[r] = None
                     break
-                x, v = s.getQ().to_numpy()[qi], s.getU().to_numpy()[qi]
-                out[r, k, self.mj_q] = x
-                out[r, k, self.mj_v] = v
+                qu[k, 0], qu[k, 1] = s.getQ().to_numpy(), s.getU().to_numpy()
+                x, v = qu[k, 0, qi], qu[k, 1, qi]
+            out[r, :done][:, self.mj_q] = qu[:done, 0][:, qi]
+            out[r, :done][:, self.mj_v] = qu[:done, 1][:, qi]
+            if done < n:
+                self.diverged(out, r, done)
             self.last[r] = out[r, -1].copy()
 
 
