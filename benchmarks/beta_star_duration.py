@@ -26,7 +26,7 @@ estimate at t equal to a run of duration t):
    again: if K is the unsettled direction, it vanishes there.
 
     python benchmarks/beta_star_duration.py --threads 2 --json beta_star_duration.json
-    python benchmarks/beta_star_duration.py --realizations 16 --duration 400 \\
+    python benchmarks/beta_star_duration.py --realizations 32 --duration 400 \\
         --checkpoints 100,200,400 --bootstrap 100                 # a smoke run
 """
 

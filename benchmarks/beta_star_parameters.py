@@ -20,7 +20,7 @@ Intervals: a paired bootstrap over realisations (the same resamples for every
 parameter set, :func:`reduced.beta_star.bootstrap_indices`).
 
     python benchmarks/beta_star_parameters.py                  # 16 x 1000 s, seed 1
-    python benchmarks/beta_star_parameters.py --realizations 2 --duration 50   # smoke
+    python benchmarks/beta_star_parameters.py --realizations 4 --duration 200  # smoke
 """
 
 from __future__ import annotations

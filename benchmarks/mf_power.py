@@ -151,9 +151,13 @@ def fell_back(checks: list, model: str | None = None) -> bool:
 def pairs(checks: list, model: str) -> list[int]:
     """The engine realisations paired (``values["n"]``) in each multifidelity check of
     ``model`` (a batch engine pairs every realisation of its one call)."""
-    return [int(c["values"]["n"]) for c in checks
-            if model in c["name"].split(".") and "n_twin" in c["values"]
-            and "n" in c["values"]]  # fmt: skip
+    out = []
+    for c in checks:
+        v = c["values"]
+        v = v if "n_twin" in v else v.get("full") or {}  # lambda1: under the engine's "full"
+        if model in c["name"].split(".") and "n_twin" in v and "n" in v:
+            out.append(int(v["n"]))
+    return out
 
 
 def summarise(rows: dict[str, list[dict]]) -> list[dict]:
