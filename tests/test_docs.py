@@ -161,6 +161,108 @@ def test_shell_blocks_run(page, tmp_path):
         )
 
 
+def _not_run_commands() -> list[tuple[str, list[str]]]:
+    """(where, words) of every ``cip-validate`` and ``python benchmarks/NAME.py`` command
+    in the pages' not-run blocks, continuation lines joined and comments dropped; a
+    synopsis (``[--opt X]``, ``a|b``, ``CMD ARGS``) is not a command."""
+    import shlex
+
+    out = []
+    for page in PAGES:
+        for block in shell_blocks(page):
+            if block.marker is None or block.marker[0] != "not-run":
+                continue
+            for k, line in enumerate(_script(block).replace("\\\n", " ").splitlines()):
+                words = shlex.split(line, comments=True)
+                if not words or re.search(r"[\[|]|CMD ARGS", line.split("#")[0]):
+                    continue
+                if (
+                    words[0] == "cip-validate"
+                    or words[:2] == ["python", "benchmarks/"]
+                    or (
+                        words[0] == "python"
+                        and len(words) > 1
+                        and words[1].startswith("benchmarks/")
+                    )
+                ):
+                    out.append((f"{block.where} +{k}", words))
+    return out
+
+
+class _Parsed(Exception):
+    """Raised by the patched ``parse_args`` once a script's arguments parsed."""
+
+
+def test_not_run_commands_parse(monkeypatch):
+    """Every command the pages show but do not run (slow, needs a GPU...) at least parses:
+    ``cip-validate`` lines by the CLI's own parser, ``python benchmarks/NAME.py`` lines by
+    the script's (its ``main`` stopped right after ``parse_args``).  An option renamed or
+    removed would otherwise leave a documented command that fails at once.  An input file
+    that is absent is no failure: the block's earlier commands write it."""
+    import argparse
+    import contextlib
+    import importlib.util
+    import io
+
+    from validation.cli.main import build_parser
+
+    commands = _not_run_commands()
+    assert len(commands) >= 20, commands  # the pages show a few dozen
+    parser = argparse.ArgumentParser
+    parse, parse_known = parser.parse_args, parser.parse_known_args
+    inside = []  # parse_args calls parse_known_args: stop only at the outer call
+
+    def parse_then_stop(self, args=None, namespace=None):
+        inside.append(True)
+        try:
+            parse(self, args, namespace)
+        finally:
+            inside.pop()
+        raise _Parsed
+
+    def parse_known_then_stop(self, args=None, namespace=None):
+        out = parse_known(self, args, namespace)
+        if inside:
+            return out
+        raise _Parsed  # the script passes what it does not know on (bench_tests: to pytest)
+
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    failures = []
+    for where, words in commands:
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+                if words[0] == "cip-validate":
+                    build_parser(full=True).parse_args(words[1:])
+                    continue
+                script = REPO / words[1]
+                spec = importlib.util.spec_from_file_location(f"_doc_{script.stem}", script)
+                module = importlib.util.module_from_spec(spec)
+                monkeypatch.setitem(sys.modules, spec.name, module)  # for its dataclasses
+                spec.loader.exec_module(module)
+                if "argparse" not in script.read_text():  # a script without options
+                    if words[2:]:
+                        failures.append(f"{where}: {' '.join(words)}: takes no arguments")
+                    continue
+                monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse_then_stop)
+                monkeypatch.setattr(
+                    argparse.ArgumentParser, "parse_known_args", parse_known_then_stop
+                )
+                monkeypatch.setattr(sys, "argv", [str(script), *words[2:]])
+                try:
+                    module.main()
+                finally:
+                    monkeypatch.setattr(argparse.ArgumentParser, "parse_args", parse)
+                    monkeypatch.setattr(argparse.ArgumentParser, "parse_known_args", parse_known)
+                failures.append(f"{where}: {' '.join(words)}: main() returned before parsing")
+        except _Parsed:
+            pass
+        except SystemExit:
+            if "no such file" not in err.getvalue():  # an input an earlier line writes
+                failures.append(f"{where}: {' '.join(words)}: {err.getvalue().strip()}")
+    assert not failures, "\n".join(failures)
+
+
 # ------------------------------------------------------------------ the README
 def test_readme_is_a_front_door():
     n = len(README.read_text().splitlines())

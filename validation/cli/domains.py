@@ -382,6 +382,8 @@ def _path(value: str, domain: Domain) -> str:
         exists, is_dir, is_file = p.exists(), p.is_dir(), p.is_file()
     except OSError as exc:  # a name too long for the file system
         raise DomainError(f"cannot use {value!r} ({exc.strerror or exc})") from None
+    if domain.kind == "in-path" and not exists:  # before the suffix: a mistyped directory
+        raise DomainError(f"no such file or directory {value!r}")
     if (
         domain.suffixes
         and p.suffix.lower() not in domain.suffixes
@@ -392,8 +394,6 @@ def _path(value: str, domain: Domain) -> str:
         if is_dir:
             raise DomainError(f"{value!r} is a directory, expected a file")
         raise DomainError(f"no such file {value!r}")
-    if domain.kind == "in-path" and not exists:
-        raise DomainError(f"no such file or directory {value!r}")
     if domain.kind == "out-file" and is_dir:
         raise DomainError(f"{value!r} is a directory, expected a file")
     if domain.kind == "out-dir" and exists and not is_dir:
