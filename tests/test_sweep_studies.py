@@ -166,4 +166,5 @@ def test_sweep_export_writes_csv_with_units(compared, tmp_path, capsys):
     assert len(df) == ds.sizes["model"] * ds.sizes["tau"] * ds.sizes["realization"]
     assert "rms [log10(m)]" in df.columns and "tau [s]" in df.columns
     assert main(["sweep-export", str(tmp_path / "none"), "--csv", str(tmp_path / "x.csv")]) == 2
-    assert "cip-validate: error: dataset" in capsys.readouterr().err
+    err = capsys.readouterr().err  # a missing directory, not "must name a .nc file"
+    assert "cip-validate: error: argument dataset: no such file or directory" in err
