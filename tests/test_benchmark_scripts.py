@@ -95,7 +95,7 @@ RUNS: dict[str, tuple[str, tuple[str, ...], str]] = {
 ELSEWHERE: dict[str, str] = {
     "hostspeed": "tests/test_benchmarks.py",
     "targets": "tests/test_benchmarks.py",
-    "native_loops": "tests/test_benchmarks.py (a module of bench_engines.py)",
+    "native_loops": "tests/test_benchmarks.py, marker bench (a module of bench_engines.py)",
     "startup": "tests/test_cli_startup.py",
     "bench_server_load": "tests/test_server_load.py",
     "release_matrix": "not run: it installs other MuJoCo releases from PyPI into venvs",

@@ -115,6 +115,7 @@ def test_every_registered_engine_has_a_native_loop_or_a_reason():
     assert not missing, f"no native loop and no reason for {missing}"
 
 
+@pytest.mark.bench  # CI's benchmark step: MJX's loop compiles for 10-20 s
 @pytest.mark.parametrize("name", sorted(_native_loops().NATIVE_LOOPS))
 def test_each_native_loop_steps_the_adapters_model(name):
     """Each engine's own loop runs on the coupled model its adapter builds (the one
