@@ -234,3 +234,37 @@ def test_simbody_failing_mid_chunk_keeps_the_steps_before_it() -> None:
     np.testing.assert_array_equal(failed[0, :2], clean[0, :2])
     assert np.isnan(failed[0, 2:, 1:]).all() and np.isfinite(failed[0, :2]).all()
     np.testing.assert_array_equal(failed[1], clean[1])
+
+
+def test_exudyn_failing_mid_chunk_keeps_the_steps_before_it(monkeypatch) -> None:
+    """An Exudyn step that fails at step 3 of realisation 0: that realisation's first two
+    steps are those of a clean run, NaN from step 3 on, one warning; the other realisation
+    is untouched."""
+    engine_or_skip("exudyn")
+    from cip.engines import exudyn
+    from cip.runner import CIPRunner
+
+    step = exudyn._Realization.step
+
+    def run(fail_at: int | None) -> tuple[np.ndarray, int]:
+        calls = [0]
+
+        def failing(self, f_cart, f_bob):
+            calls[0] += 1
+            if calls[0] == fail_at:
+                raise RuntimeError("Exudyn's Newton iteration failed")
+            return step(self, f_cart, f_bob)
+
+        monkeypatch.setattr(exudyn._Realization, "step", failing)
+        r = CIPRunner("coupled", P, CIPParams.from_reduced(P), 2, 1e-3, threads=1,
+                      backend=exudyn.ExudynRollout)  # fmt: skip
+        out = np.empty((2, 6, r.state.shape[1]))
+        r.backend(r.state.copy(), np.zeros((2, 6, r.m.nu)), out)
+        return out, r.backend.warnings()
+
+    clean, w0 = run(None)
+    failed, w1 = run(3)
+    assert (w0, w1) == (0, 1)
+    np.testing.assert_array_equal(failed[0, :2], clean[0, :2])
+    assert np.isnan(failed[0, 2:, 1:]).all() and np.isfinite(failed[0, :2]).all()
+    np.testing.assert_array_equal(failed[1], clean[1])

@@ -239,14 +239,15 @@ class ExudynRollout(ModelRollout):
         return q, qd
 
     def from_exudyn(self, q: np.ndarray, qd: np.ndarray, s: np.ndarray) -> None:
-        """Write Exudyn's ODE2 state into the MuJoCo state ``s`` (time untouched)."""
-        q, qd = q.reshape(self.nc, 4), qd.reshape(self.nc, 4)
-        dx, dy = q[:, 2] - q[:, 0], self.L + q[:, 3] - q[:, 1]
-        dvx, dvy = qd[:, 2] - qd[:, 0], qd[:, 3] - qd[:, 1]
-        s[self.mj_x] = q[:, 0]
-        s[self.mj_xdot] = qd[:, 0]
-        s[self.mj_theta] = np.arctan2(dx, dy)
-        s[self.mj_omega] = (dy * dvx - dx * dvy) / (dx * dx + dy * dy)
+        """Write Exudyn's ODE2 states ``q``, ``qd`` (..., 4 C) into the MuJoCo states ``s``
+        (..., nstate), time untouched: one state, or a chunk's steps at once."""
+        q, qd = q.reshape(*q.shape[:-1], self.nc, 4), qd.reshape(*qd.shape[:-1], self.nc, 4)
+        dx, dy = q[..., 2] - q[..., 0], self.L + q[..., 3] - q[..., 1]
+        dvx, dvy = qd[..., 2] - qd[..., 0], qd[..., 3] - qd[..., 1]
+        s[..., self.mj_x] = q[..., 0]
+        s[..., self.mj_xdot] = qd[..., 0]
+        s[..., self.mj_theta] = np.arctan2(dx, dy)
+        s[..., self.mj_omega] = (dy * dvx - dx * dvy) / (dx * dx + dy * dy)
 
     def __call__(self, state: np.ndarray, ctrl: np.ndarray, out: np.ndarray) -> None:
         R, n = ctrl.shape[:2]
@@ -261,6 +262,8 @@ class ExudynRollout(ModelRollout):
             if self.last[r] is None or not np.array_equal(self.last[r], state[r]):
                 sysr.start(*self.to_exudyn(state[r]))
             qd = sysr.qd
+            odes = np.empty((n, 2, qd.size))  # Exudyn's q and qd after each step
+            done = n
             for k in range(n):
                 qd4 = qd.reshape(self.nc, 4)
                 f_bob = -self.c_tip * qd4[:, 2]  # tip damping on the absolute tip x velocity
@@ -268,10 +271,13 @@ class ExudynRollout(ModelRollout):
                 try:
                     q, qd = sysr.step(f_cart, f_bob)
                 except RuntimeError:  # a failed Exudyn step: the realisation diverged
-                    self.diverged(out, r, k)
+                    done = k
                     self.systems[r] = None
                     break
-                self.from_exudyn(q, qd, out[r, k])
+                odes[k, 0], odes[k, 1] = q, qd
+            self.from_exudyn(odes[:done, 0], odes[:done, 1], out[r, :done])
+            if done < n:
+                self.diverged(out, r, done)
             self.last[r] = out[r, -1].copy()
 
 
