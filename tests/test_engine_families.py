@@ -195,75 +195,71 @@ def test_the_engines_run_records_each_engines_package_versions():
     assert set(got) - {"commit"} == {"dartpy"}, got
 
 
-def test_simbody_failing_mid_chunk_keeps_the_steps_before_it() -> None:
-    """A ``Manager.integrate`` that raises at step 3 of realisation 0: that realisation's
-    first two steps are those of a clean run, NaN from step 3 on, one warning; the other
-    realisation is untouched."""
-    engine_or_skip("simbody")
-    from cip.engines.simbody import SimbodyRollout
-    from cip.runner import CIPRunner
+class _ThirdCallFails:
+    """Counts the engine's steps; the third raises, as a failed engine step does."""
 
-    def runner(fail_at: int | None) -> tuple[np.ndarray, int]:
-        r = CIPRunner("coupled", P, CIPParams.from_reduced(P), 2, 1e-3, threads=1,
-                      backend=SimbodyRollout)  # fmt: skip
-        b, calls = r.backend, [0]
-        make = b.osim_model.manager
+    def __init__(self) -> None:
+        self.calls = 0
 
-        class Failing:
-            def __init__(self, mgr):
-                self.mgr = mgr
-
-            def getState(self):  # OpenSim's name
-                return self.mgr.getState()
-
-            def integrate(self, t):
-                calls[0] += 1
-                if calls[0] == fail_at:
-                    raise RuntimeError("projection failed")
-                return self.mgr.integrate(t)
-
-        b.osim_model.manager = lambda *a: Failing(make(*a)) if fail_at else make(*a)
-        ctrl = np.zeros((2, 6, r.m.nu))
-        out = np.empty((2, 6, r.state.shape[1]))
-        b(r.state.copy(), ctrl, out)
-        return out, b.warnings()
-
-    clean, w0 = runner(None)
-    failed, w1 = runner(3)
-    assert (w0, w1) == (0, 1)
-    np.testing.assert_array_equal(failed[0, :2], clean[0, :2])
-    assert np.isnan(failed[0, 2:, 1:]).all() and np.isfinite(failed[0, :2]).all()
-    np.testing.assert_array_equal(failed[1], clean[1])
+    def __call__(self) -> None:
+        self.calls += 1
+        if self.calls == 3:
+            raise RuntimeError("the engine's step failed")
 
 
-def test_exudyn_failing_mid_chunk_keeps_the_steps_before_it(monkeypatch) -> None:
-    """An Exudyn step that fails at step 3 of realisation 0: that realisation's first two
-    steps are those of a clean run, NaN from step 3 on, one warning; the other realisation
-    is untouched."""
-    engine_or_skip("exudyn")
+def _simbody_fails(monkeypatch, fail: _ThirdCallFails) -> None:
+    """Each ``Manager.integrate`` counted by ``fail`` (it raises as Simbody's projection does)."""
+    from cip.engines import simbody
+
+    make = simbody._Model.manager
+
+    class Failing:
+        def __init__(self, mgr):
+            self.mgr = mgr
+
+        def getState(self):  # OpenSim's name
+            return self.mgr.getState()
+
+        def integrate(self, t):
+            fail()
+            return self.mgr.integrate(t)
+
+    monkeypatch.setattr(simbody._Model, "manager", lambda *a: Failing(make(*a)))
+
+
+def _exudyn_fails(monkeypatch, fail: _ThirdCallFails) -> None:
+    """Each Exudyn step counted by ``fail`` (it raises as a failed Newton iteration does)."""
     from cip.engines import exudyn
-    from cip.runner import CIPRunner
 
     step = exudyn._Realization.step
 
-    def run(fail_at: int | None) -> tuple[np.ndarray, int]:
-        calls = [0]
+    def failing(self, f_cart, f_bob):
+        fail()
+        return step(self, f_cart, f_bob)
 
-        def failing(self, f_cart, f_bob):
-            calls[0] += 1
-            if calls[0] == fail_at:
-                raise RuntimeError("Exudyn's Newton iteration failed")
-            return step(self, f_cart, f_bob)
+    monkeypatch.setattr(exudyn._Realization, "step", failing)
 
-        monkeypatch.setattr(exudyn._Realization, "step", failing)
+
+@pytest.mark.parametrize(("name", "inject"), [("simbody", _simbody_fails),
+                                              ("exudyn", _exudyn_fails)])  # fmt: skip
+def test_a_step_failing_mid_chunk_keeps_the_steps_before_it(name, inject, monkeypatch) -> None:
+    """The engine's step fails at step 3 of realisation 0: that realisation's first two
+    steps are those of a clean run, NaN from step 3 on, one warning; the other realisation
+    is untouched."""
+    from cip.runner import CIPRunner
+
+    backend = engine_or_skip(name).backend()
+
+    def chunk() -> tuple[np.ndarray, int]:
         r = CIPRunner("coupled", P, CIPParams.from_reduced(P), 2, 1e-3, threads=1,
-                      backend=exudyn.ExudynRollout)  # fmt: skip
+                      backend=backend)  # fmt: skip
         out = np.empty((2, 6, r.state.shape[1]))
         r.backend(r.state.copy(), np.zeros((2, 6, r.m.nu)), out)
         return out, r.backend.warnings()
 
-    clean, w0 = run(None)
-    failed, w1 = run(3)
+    clean, w0 = chunk()
+    inject(monkeypatch, _ThirdCallFails())
+    failed, w1 = chunk()
     assert (w0, w1) == (0, 1)
     np.testing.assert_array_equal(failed[0, :2], clean[0, :2])
     assert np.isnan(failed[0, 2:, 1:]).all() and np.isfinite(failed[0, :2]).all()
