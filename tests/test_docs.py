@@ -176,15 +176,8 @@ def _not_run_commands() -> list[tuple[str, list[str]]]:
                 words = shlex.split(line, comments=True)
                 if not words or re.search(r"[\[|]|CMD ARGS", line.split("#")[0]):
                     continue
-                if (
-                    words[0] == "cip-validate"
-                    or words[:2] == ["python", "benchmarks/"]
-                    or (
-                        words[0] == "python"
-                        and len(words) > 1
-                        and words[1].startswith("benchmarks/")
-                    )
-                ):
+                script = words[0] == "python" and words[1:2] and words[1].startswith("benchmarks/")
+                if words[0] == "cip-validate" or script:
                     out.append((f"{block.where} +{k}", words))
     return out
 

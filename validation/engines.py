@@ -142,7 +142,6 @@ def engine_checks(
     The function is long because it runs the agreement stages in order and keeps every
     finished stage when an engine fails.
     """
-    prof = profile
     engine = get_engine(name)
     caps = engine.capabilities
     row: dict[str, Any] = {}
@@ -157,9 +156,9 @@ def engine_checks(
     row["stage_seconds"] = stages
     if caps.rigid_body:
         target = {"engine": name, "integrator": integrator}
-        checks = timed("lambda1", agreement.lyapunov_checks, prof, threads, **target)[0]
-        checks += timed("time series", agreement.series_checks, prof, threads, **target)[0]
-        checks += timed("amplitude scan", agreement.amplitude_scan, prof, threads, **target)[0]
+        checks = timed("lambda1", agreement.lyapunov_checks, profile, threads, **target)[0]
+        checks += timed("time series", agreement.series_checks, profile, threads, **target)[0]
+        checks += timed("amplitude scan", agreement.amplitude_scan, profile, threads, **target)[0]
         row.update(twin_tolerance={m: engine.twin_tolerance_for(m) for m in MODEL_NAMES},
                    rod_tolerance=engine.rod_tolerance,
                    integrator=integrator)  # fmt: skip
@@ -199,7 +198,7 @@ def engine_checks(
                 "catalogued fault fails one", details="seed 1, 2 realisations",
             ))  # fmt: skip
     else:
-        checks = _reference_checks(engine, name, prof, threads)
+        checks = _reference_checks(engine, name, profile, threads)
         row["trajectory_distance"] = {
             m: _value(checks, f"engine.trajectory.{m}", "relative_l2") for m in MODEL_NAMES
         }
