@@ -986,6 +986,49 @@ def multifidelity_series(
                     "metrics_reduced": ms["reduced"]}  # fmt: skip
 
 
+#: How far (relative) the engine's largest |theta| may go past the reference's, scaled
+#: by the engine's linear excess (:func:`mark_engine_left`), inside the small-angle
+#: regime: the regime's 1 % trajectory tolerance, applied to the angle
+ENGINE_LEFT_TOLERANCE = 0.01
+
+
+def mark_engine_left(rows: list[dict], limit: float) -> None:
+    """Set each scan row's ``engine_left_regime``: did the engine leave the small-angle
+    regime while the reference stayed inside it?
+
+    ``rows`` are one model's amplitude-scan rows, each with the engine's largest |theta|
+    (``max_abs_angle``, rad, at every step) and the reference's (``reference_max_abs_angle``,
+    arcsin(|e| / L) over its recorded samples and every stick).  Under the same noise both
+    linear models scale with the amplitude, so at the smallest amplitude whose reference
+    stays inside the regime the ratio r_lin = engine / reference is the engine's linear
+    excess: its rigid body against the m/M -> 0 reference, and every step against the
+    recorded samples (1.0007 to 1.0075 over seeds 1 to 40 of the quick profile, the same at
+    1e-5, 1e-4 and 1e-3 m).  A row whose reference is inside the regime (``limit``, rad)
+    has its engine leave it where
+
+        max_abs_angle > max(limit, (1 + ENGINE_LEFT_TOLERANCE) r_lin reference_max_abs_angle).
+
+    What is left inside the regime after the scaling is the angles' nonlinear terms: at most
+    0.45 % over the same seeds (0.89 % without the scaling, against the 1 % tolerance: the
+    coupled model failed at 4 of 20 seeds while the reference read one stick only).  An
+    engine that hits a joint limit or a contact goes past it by far (0.41 against 0.041 rad
+    for a cart slide range of 0.02 m).  Without a row inside the regime, or where the
+    engine's angle there is not finite, r_lin = 1.
+    """
+    inside = sorted((r for r in rows if r["reference_max_abs_angle"] <= limit),
+                    key=lambda r: r["amplitude"])  # fmt: skip
+    first = inside[0] if inside else None
+    r_lin = 1.0
+    if first is not None and first["reference_max_abs_angle"] > 0:
+        r_lin = first["max_abs_angle"] / first["reference_max_abs_angle"]
+        r_lin = r_lin if np.isfinite(r_lin) else 1.0  # an engine that fell there: unscaled
+    for r in rows:
+        expected = (1.0 + ENGINE_LEFT_TOLERANCE) * r_lin * r["reference_max_abs_angle"]
+        r["engine_left_regime"] = bool(
+            r["reference_max_abs_angle"] <= limit and r["max_abs_angle"] > max(limit, expected)
+        )
+
+
 #: The departure the small-angle regime allows (cip.model.small_angle_limit: sin theta =
 #: theta to 0.1 %), in log10 units: added to the scan's paired margins, which resolve
 #: the angles' second-order terms (1e-4 in log10 RMS at 0.04 rad) well inside it.
@@ -1054,14 +1097,13 @@ def amplitude_scan(
                 for k in range(bf.shape[1])
             ])  # fmt: skip
             max_angle = float(np.max(full.attrs["max_abs_angle"]))
-            # the regime as the reference sees it: theta = arcsin(|e| / L), L = g / alpha
+            # the regime as the reference sees it: theta = arcsin(|e| / L), L = g / alpha,
+            # over every stick, as the engine's largest |theta| is (the coupled model's
+            # second stick went past the first's by 12 % at 1e-4 m, seed 7)
             L_ref = pendulum_length(BalanceParams(beta=beta))
             with np.errstate(invalid="ignore"):
-                e_max = float(np.nanmax(np.abs(er[..., 0])))
+                e_max = float(np.nanmax(np.abs(er)))
             ref_angle = float(np.arcsin(min(1.0, e_max / L_ref)))
-            # the engine left the regime (beyond the regime's 1% trajectory tolerance on
-            # the angle) while the reference stayed inside it
-            engine_left = bool(ref_angle <= limit and max_angle > max(limit, 1.01 * ref_angle))
             rows.append(
                 {
                     "model": model,
@@ -1069,7 +1111,6 @@ def amplitude_scan(
                     "max_abs_angle": max_angle,
                     "reference_max_abs_angle": ref_angle,
                     "small_angle": ref_angle <= limit,
-                    "engine_left_regime": engine_left,
                     "relative_l2": rel,
                     "trajectory": PASS if rel < 0.01 else FAIL,
                     "log10_rms": st_rms,
@@ -1081,6 +1122,7 @@ def amplitude_scan(
             )
     for model in PAPER_BETA:
         mine = [r for r in rows if r["model"] == model]
+        mark_engine_left(mine, limit)
         inside = [r for r in mine if r["small_angle"]]
         outside = [r for r in mine if not r["small_angle"]]
         largest = {}
