@@ -9,6 +9,7 @@ seed takes about 4 s and a quick seed about 23 s (10 minutes in all).
 
     python benchmarks/seed_robustness.py                       # smoke x 20, quick x 20
     python benchmarks/seed_robustness.py --profile quick --seeds 1-40 --json out.json
+    python benchmarks/seed_robustness.py --profile smoke --engine bullet   # another engine
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
+from cipcore.registry import engine_names
+from cipcore.scenario import EngineTarget
 from validation.profiles import PROFILES
 from validation.run import RunSetting, run_validation
 
@@ -36,7 +39,7 @@ def seeds_arg(text: str) -> list[int]:
     return [int(s) for s in text.split(",")]
 
 
-def run_seeds(profile: str, seeds: list[int], workers: int | None) -> dict:
+def run_seeds(profile: str, seeds: list[int], workers: int | None, engine: str = "mujoco") -> dict:
     fails: Counter = Counter()
     inconclusive: Counter = Counter()
     names: set[str] = set()
@@ -44,8 +47,8 @@ def run_seeds(profile: str, seeds: list[int], workers: int | None) -> dict:
     for seed in seeds:
         t = time.perf_counter()
         with tempfile.TemporaryDirectory() as tmp:
-            setting = RunSetting(replace(PROFILES[profile], seed=seed), workers=workers,
-                                 figures=False, progress=False)  # fmt: skip
+            setting = RunSetting(replace(PROFILES[profile], seed=seed), EngineTarget(engine),
+                                 workers=workers, figures=False, progress=False)  # fmt: skip
             res = run_validation(setting, Path(tmp))
         bad = [c["name"] for c in res["checks"] if c["status"] == "fail"]
         inc = [c["name"] for c in res["checks"] if c["status"] == "inconclusive"]
@@ -58,12 +61,13 @@ def run_seeds(profile: str, seeds: list[int], workers: int | None) -> dict:
             "seconds": round(time.perf_counter() - t, 1),
         }
         print(
-            f"{profile} seed {seed}: {len(bad)} failed {bad}, {len(inc)} inconclusive, "
+            f"{engine} {profile} seed {seed}: {len(bad)} failed {bad}, {len(inc)} inconclusive, "
             f"{per_seed[seed]['seconds']} s",
             file=sys.stderr,
             flush=True,
         )
     return {
+        "engine": engine,
         "profile": profile,
         "seeds": seeds,
         "checks": sorted(names),
@@ -76,7 +80,8 @@ def run_seeds(profile: str, seeds: list[int], workers: int | None) -> dict:
 def table(r: dict) -> str:
     n = len(r["seeds"])
     out = [
-        f"{r['profile']} profile, seeds {r['seeds'][0]}..{r['seeds'][-1]} ({n} runs):",
+        f"{r['engine']}, {r['profile']} profile, "
+        f"seeds {r['seeds'][0]}..{r['seeds'][-1]} ({n} runs):",
         f"  {'check':<52} {'failed':>7} {'inconcl.':>9}",
     ]
     for name in r["checks"]:
@@ -94,12 +99,18 @@ def main() -> None:
     ap.add_argument("--profile", choices=tuple(DEFAULT), action="append")
     ap.add_argument("--seeds", type=seeds_arg, help="e.g. 1-20 (default: 1..20)")
     ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument(
+        "--engine",
+        default="mujoco",
+        choices=engine_names(),
+        help="the engine validated (default: mujoco)",
+    )
     ap.add_argument("--json", metavar="FILE", help="also write the counts as JSON")
     a = ap.parse_args()
     results = []
     for profile in a.profile or list(DEFAULT):
         seeds = a.seeds or list(range(1, DEFAULT[profile] + 1))
-        r = run_seeds(profile, seeds, a.workers)
+        r = run_seeds(profile, seeds, a.workers, a.engine)
         print(table(r), flush=True)
         results.append(r)
     if a.json:

@@ -82,7 +82,8 @@ RUNS: dict[str, tuple[str, tuple[str, ...], str]] = {
         (), r"c\[mass_ratio\] mean [+-]\d",
     ),
     "rod_stretch": ("--engines mujoco,bullet", ("bullet",), r"\nbullet +\d\.\d{3}e"),
-    "seed_robustness": ("--profile smoke --seeds 1 --workers 2", (),
+    "seed_robustness": ("--profile smoke --seeds 1 --workers 2 --engine mujoco", (),
+                        r"mujoco, smoke profile, seeds 1\.\.1 \(1 runs\):(.|\n)*"
                         r"runs with any failed check: \d+ of 1"),
     "twin_floor": (
         "--engines mujoco,bullet --integrators Euler,RK4 --realizations 1 --duration 0.5 "
