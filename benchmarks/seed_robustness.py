@@ -23,8 +23,10 @@ from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
+from cipcore.params import ParameterError
 from cipcore.registry import engine_names
 from cipcore.scenario import EngineTarget
+from validation.checks.agreement import rigid_engine
 from validation.profiles import PROFILES
 from validation.run import RunSetting, run_validation
 
@@ -107,6 +109,10 @@ def main() -> None:
     )
     ap.add_argument("--json", metavar="FILE", help="also write the counts as JSON")
     a = ap.parse_args()
+    try:  # as `cip-validate run --engine`: installed, and a rigid-body engine
+        rigid_engine(a.engine)
+    except ParameterError as exc:
+        ap.error(f"--engine: {exc}")
     results = []
     for profile in a.profile or list(DEFAULT):
         seeds = a.seeds or list(range(1, DEFAULT[profile] + 1))

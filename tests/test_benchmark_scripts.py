@@ -128,3 +128,15 @@ def test_every_benchmark_script_is_run_by_a_test() -> None:
         f"not run by any test: {sorted(scripts - set(RUNS) - set(ELSEWHERE))}; "
         f"listed but gone: {sorted(set(RUNS) | set(ELSEWHERE) - scripts)}"
     )
+
+
+def test_seed_robustness_refuses_an_engine_run_cannot_validate_in_one_line() -> None:
+    # the reference itself is no rigid-body engine: refused before any seed runs, as
+    # `cip-validate run --engine reduced` is
+    cmd = [sys.executable, str(BENCH / "seed_robustness.py"), "--engine", "reduced"]
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr[-2000:]
+    last = out.stderr.strip().splitlines()[-1]
+    assert last.startswith("seed_robustness.py: error: --engine: engine 'reduced' is not a "
+                           "rigid-body engine"), out.stderr  # fmt: skip
+    assert "Traceback" not in out.stderr and out.stdout == ""
