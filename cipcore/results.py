@@ -3,6 +3,8 @@
 :class:`LyapunovResult` is the largest Lyapunov exponent lambda1 (1/s) of a
 batch of realisations, whichever engine computed it: the mean over
 realisations and its Student-t 95 % CI (:mod:`cipcore.stats`).
+:class:`CriticalGain` is beta*, the gain at which lambda1 reaches a target.  Both are
+plain records, importable without numba or an engine (the figure process unpickles them).
 """
 
 from __future__ import annotations
@@ -66,3 +68,33 @@ def check_transient(transient: float | None, duration: float) -> float:
     if not (0 <= t < duration):
         raise ParameterError(f"transient must be in [0, duration = {duration}) s, got {transient}")
     return t
+
+
+@dataclass
+class CriticalGain:
+    """beta* (1/s^2): the gain at which lambda1 equals ``target``
+    (:func:`reduced.lyapunov.critical_gain`, ``validation.paper``).
+
+    ``ci95`` is a bootstrap percentile interval over realisations (the same
+    realisations at every gain: common random numbers), ``std`` its standard
+    deviation.  ``betas`` / ``lambdas`` / ``ci95s`` are the evaluations used.
+    """
+
+    beta_star: float
+    std: float
+    ci95: tuple[float, float]
+    target: float
+    betas: np.ndarray
+    lambdas: np.ndarray
+    ci95s: np.ndarray
+    model: str
+    duration: float
+    n_realizations: int
+    seed: int
+
+    def as_dict(self) -> dict:
+        d = asdict(self)
+        for k in ("betas", "lambdas", "ci95s"):
+            d[k] = np.asarray(d[k]).tolist()
+        d["ci95"] = [float(v) for v in self.ci95]
+        return d

@@ -18,14 +18,13 @@ result.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from cipcore.driver import run_blocks
 from cipcore.noise import GainNoise, make_noise
 from cipcore.params import STEPPERS, BalanceParams, ParameterError, check_choice, whole_steps
-from cipcore.results import LyapunovResult, check_transient
+from cipcore.results import CriticalGain, LyapunovResult, check_transient
 from cipcore.scenario import Execution, Scenario
 from cipcore.schema import check_duration
 from cipcore.seeds import purpose_rng, tangent_rng
@@ -164,35 +163,6 @@ def lyapunov_gains(
             model=model, params=p.as_dict(), seed=noise.seed,
         ))  # fmt: skip
     return out
-
-
-@dataclass
-class CriticalGain:
-    """beta* (1/s^2): the gain at which lambda1 equals ``target``.
-
-    ``ci95`` is a bootstrap percentile interval over realisations (the same
-    realisations at every gain: common random numbers), ``std`` its standard
-    deviation.  ``betas`` / ``lambdas`` / ``ci95s`` are the evaluations used.
-    """
-
-    beta_star: float
-    std: float
-    ci95: tuple[float, float]
-    target: float
-    betas: np.ndarray
-    lambdas: np.ndarray
-    ci95s: np.ndarray
-    model: str
-    duration: float
-    n_realizations: int
-    seed: int
-
-    def as_dict(self) -> dict:
-        d = asdict(self)
-        for k in ("betas", "lambdas", "ci95s"):
-            d[k] = np.asarray(d[k]).tolist()
-        d["ci95"] = [float(v) for v in self.ci95]
-        return d
 
 
 def numerical_setting(

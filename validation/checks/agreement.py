@@ -29,6 +29,7 @@ from cipcore.schema import Trajectory
 from reduced import BalanceParams, lyapunov, simulate
 from validation.checks import metrics, refinement
 from validation.checks.closed_loop import closed_loop_check
+from validation.checks.metrics import SeriesMetrics
 from validation.checks.rod import rod_check
 from validation.checks.stats import (
     FAIL,
@@ -241,22 +242,6 @@ def lambda1_multifidelity(
         out.append((check, {"model": model, "beta": p.beta, "full": engine_row,
                             "reduced": red.as_dict(), "twin": tw.as_dict()}))  # fmt: skip
     return out
-
-
-@dataclass
-class SeriesMetrics:
-    """Per-realisation metrics of one engine's time series (controller 1)."""
-
-    log_rms: np.ndarray
-    band_log_power: np.ndarray  # (R, bands)
-    band_centres: np.ndarray
-    slopes: metrics.PowerLawFit
-    spectrum: tuple[np.ndarray, np.ndarray]
-    tau_hat: np.ndarray  # (R, windows)
-    stcc_times: np.ndarray
-    tau_hat_median: np.ndarray
-    fast_fraction: np.ndarray  # fraction of windows with tau_hat < tau
-    log_velocity_sd: np.ndarray
 
 
 def series_metrics(tr: Trajectory, profile: Profile, tau: float, segment: float) -> SeriesMetrics:

@@ -61,6 +61,22 @@ class PowerLawFit(_Record):
     fmax: float
 
 
+@dataclass
+class SeriesMetrics:
+    """Per-realisation metrics of one engine's time series (controller 1)."""
+
+    log_rms: np.ndarray
+    band_log_power: np.ndarray  # (R, bands)
+    band_centres: np.ndarray
+    slopes: PowerLawFit
+    spectrum: tuple[np.ndarray, np.ndarray]
+    tau_hat: np.ndarray  # (R, windows)
+    stcc_times: np.ndarray
+    tau_hat_median: np.ndarray
+    fast_fraction: np.ndarray  # fraction of windows with tau_hat < tau
+    log_velocity_sd: np.ndarray
+
+
 def log_bins(
     f: np.ndarray, s: np.ndarray, fmin: float, fmax: float, n_bins: int
 ) -> tuple[np.ndarray, np.ndarray]:

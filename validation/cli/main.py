@@ -40,6 +40,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from cipcore import quickexit
 from cipcore.atomic import WriteError
 from validation.cli.args import (
     EXIT_FAIL,
@@ -281,12 +282,15 @@ def entry() -> None:
 
     :func:`main` with its status as the process's; after a run stopped by SIGINT or
     SIGTERM both signals stay ignored until the process has exited
-    (:func:`validation.cli.args.ignore_signals_after_interrupt`).
+    (:func:`validation.cli.args.ignore_signals_after_interrupt`).  Once ``main``
+    returned, the process ends without tearing its imported modules down
+    (:mod:`cipcore.quickexit`: 0.35-0.4 s after a smoke run).
     """
+    quickexit.arm()  # first: its atexit handler must run after every other one
     ignore_signals_after_interrupt()
     status = main()
     forget_handled_keyboard_interrupt()  # main returned: every KeyboardInterrupt was handled
-    sys.exit(status)
+    quickexit.exit(status)  # no module teardown once the outputs are written
 
 
 if __name__ == "__main__":

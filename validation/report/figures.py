@@ -28,10 +28,13 @@ from cipcore.atomic import WriteError
 
 def main() -> int:
     # loaded while the stages compute, not when a job arrives: the classes of the pickled
-    # stage results, and the rod-length study's dataset (xarray) and its figure code
+    # stage results (plain records in light modules: no numba, no engine), and the
+    # rod-length study's dataset (xarray) and its figure code
     import xarray  # noqa: F401
 
-    import reduced  # noqa: F401
+    import cipcore.results
+    import cipcore.schema  # noqa: F401
+    import validation.checks.metrics  # noqa: F401
     from validation import sweep  # noqa: F401
     from validation.report import plots  # noqa: F401
 
@@ -98,4 +101,7 @@ def rod_figures(out_dir: Path, rod_ds) -> list[Path]:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from cipcore import quickexit
+
+    quickexit.arm()  # the run waits for this process's exit: no module teardown
+    quickexit.exit(main())
