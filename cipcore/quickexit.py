@@ -59,6 +59,8 @@ def arm() -> None:
 
 def exit(status: int | None) -> NoReturn:
     """``sys.exit(status)``; once the ``atexit`` handlers have run, :func:`arm`'s handler
-    ends the process with ``status`` without the module teardown."""
-    _STATUS.append(int(status or 0))
+    ends the process with ``status`` without the module teardown.  A status that is
+    not a number (``sys.exit``'s message form) ends the usual way."""
+    if status is None or isinstance(status, int):
+        _STATUS.append(int(status or 0))
     sys.exit(status)
