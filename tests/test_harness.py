@@ -37,6 +37,15 @@ def test_smoke_profile_runs_every_stage_and_passes(smoke_run):
     assert html.count("data:image/png;base64") == 11
     assert "Paper reproduction" in (out / "report.md").read_text()
     assert results["versions"]["mujoco"]
+    # run in validation.run.STAGES' order (the conformance stage last, before the
+    # figures), listed in RESULT_ORDER's: the model files' conformance and anchors first
+    from validation.run import RESULT_ORDER, STAGES
+
+    assert results["stages_done"] == list(STAGES)
+    assert STAGES[-2:] == ("conformance and anchors", "figures")
+    assert sorted(RESULT_ORDER) == sorted(STAGES)
+    first = [c["name"].split(".")[0] for c in results["checks"][:6]]
+    assert first == ["model", "model", "anchor", "anchor", "anchor", "anchor"]
 
 
 def test_baseline_regression_passes_on_itself_and_fails_on_a_moved_number(smoke_run, tmp_path):

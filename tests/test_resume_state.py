@@ -214,8 +214,9 @@ def test_a_stage_failing_after_an_interrupt_signal_is_an_interruption(
     counted, tmp_path, monkeypatch, signalled
 ):
     """A KeyboardInterrupt inside an extension module's import comes out as another
-    exception (pandas' C parser: ImportError). After a signal that is the interruption,
-    with the stages kept and no crash recorded; without one it stays a crash."""
+    exception (pandas' C parser: ImportError, seen in the rod-length study's first import
+    of xarray). After a signal that is the interruption, with the stages kept and no
+    crash recorded; without one it stays a crash.  Here the second stage raises it."""
     import json
 
     arrived = {"signal": False}
@@ -224,7 +225,8 @@ def test_a_stage_failing_after_an_interrupt_signal_is_an_interruption(
         arrived["signal"] = signalled  # the signal lands during the stage's import
         raise ImportError("pd_parser.c could not import module pandas")
 
-    monkeypatch.setattr(harness.agreement, "rod_length_study", imports_pandas)
+    assert STAGES[1] == "time-series agreement"
+    monkeypatch.setattr(harness.agreement, "series_checks", imports_pandas)
     monkeypatch.setattr(harness, "_results", lambda *a, **k: {})
     out = tmp_path / "out"
     expected = harness.RunInterrupted if signalled else harness.StageCrashed

@@ -40,6 +40,13 @@ from helpers import WRITE_FAULT_ENV, WriteFault, final_path, write_fault_site
 from cipcore.atomic import WriteError, write_text
 from validation.cli.main import main
 from validation.profiles import PROFILES
+from validation.run import STAGES
+
+
+def _stage_record(name: str) -> str:
+    """A stage's record under the run's directory (its index in the run order)."""
+    return f"run/stages/{STAGES.index(name)}-{name.replace(' ', '_')}.pkl"
+
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the packages whose writes are cipval's outputs (benchmarks/ and examples/ are not)
@@ -139,8 +146,8 @@ WRITERS: dict[str, Writer] = {
     "run: a stage record": Writer(
         ("validation/run.py::_Stages.save::_atomic", "validation/run.py::_atomic::write_bytes",
          "validation/run.py::run_validation::save"),
-        RUN, "run/stages/8-lambda1_curve.pkl", source="tiny_run", old=False,
-        drop=("run/stages/8-lambda1_curve.pkl",)),
+        RUN, _stage_record("lambda1 curve"), source="tiny_run", old=False,
+        drop=(_stage_record("lambda1 curve"),)),
     "run: the stages' manifest": Writer(
         ("validation/run.py::_Stages.__init__::_atomic",),
         tuple(a for a in RUN if a != "--resume"), "run/stages/manifest.json", source="tiny_run",
@@ -148,7 +155,7 @@ WRITERS: dict[str, Writer] = {
     "run: the rod-length study (sweep points)": Writer(
         ("validation/checks/agreement.py::rod_length_study::run_sweep",),
         RUN, "run/rod_length/points/*.json", source="tiny_run", old=False,
-        drop=("run/stages/1-rod-length_study.pkl", "run/rod_length")),
+        drop=(_stage_record("rod-length study"), "run/rod_length")),
     "sweep: a point (the second)": Writer(
         ("validation/sweeps/store.py::atomic_write::write_text",
          "validation/sweeps/store.py::Store.save::atomic_write",
@@ -706,14 +713,16 @@ def test_a_crashed_run_whose_results_cannot_be_written(tmp_path, capfd, inject, 
     from validation import run as harness
 
     shutil.copytree(tiny_run, tmp_path, dirs_exist_ok=True)
-    (tmp_path / "run" / "stages" / "8-lambda1_curve.pkl").unlink()
+    (tmp_path / _stage_record("lambda1 curve")).unlink()
 
     def broken(*args, **kwargs):
         raise RuntimeError("the engine broke")
 
     monkeypatch.setattr(harness.paper, "lyapunov_curve", broken)
     before = _tree(tmp_path)
-    inject(tmp_path / "run" / "results.json", "replace", errno.EIO, nth=9)  # after 8 stages
+    # the crash's partial results.json: after one written per stage before the crashed one
+    inject(tmp_path / "run" / "results.json", "replace", errno.EIO,
+           nth=STAGES.index("lambda1 curve") + 1)  # fmt: skip
     status = main([a.replace("{t}", str(tmp_path)) for a in RUN])
     err = capfd.readouterr().err
     assert len(_hits(tmp_path)) == 1, err[-2000:]
