@@ -76,8 +76,9 @@ __all__ = ["STAGES", "RunInterrupted", "StageCrashed", "compile_note", "package_
 #: so the stages with the most figures to draw come first and those with none last: the
 #: rod-length study (two), the time series and the STCC (four), ..., the lambda1 stages
 #: (one), then robustness, the nonlinear stick and the model files' conformance with the
-#: anchors, which the drawing overlaps (the conformance stage first, the figure process
-#: waited idle for its first job: a smoke run's wall time was 0.4 s longer)
+#: anchors, which the drawing overlaps (with the conformance stage first, the figure
+#: process waited idle for its first job: a smoke run took 5.74 s against 5.50 s, medians
+#: of 3 side by side, ``benchmarks/bench_run.py --against 28cb82a``)
 STAGES = ("rod-length study", "time-series agreement", "STCC and spectra",
           "RMS and velocity", "amplitude scan", "lambda1 agreement", "critical gains",
           "lambda1 curve", "robustness", "nonlinear stick", "conformance and anchors",
