@@ -247,3 +247,25 @@ def test_divergence_of_the_stages_is_listed_per_run_and_point():
     assert "fell" in out[0]["summary"] and "0.3 m" in out[0]["run"]
     assert out[1]["run"] == "rod_length_ratio=2.0, amplitude=0.001"
     assert "realisations [2] of 3 diverged (first at t = 4.5 s)" == out[1]["summary"]
+
+
+def test_divergence_searches_each_stage_once_per_run(monkeypatch):
+    """The partial results written after every stage reuse the rows of the stages already
+    searched (``seen``), and search a stage again when its value is another object."""
+    import validation.run as run
+
+    calls = []
+    real = run._stage_divergence
+    monkeypatch.setattr(run, "_stage_divergence",
+                        lambda name, value: calls.append(name) or real(name, value))  # fmt: skip
+    scan = ([], [{"model": "single", "amplitude": 0.3, "small_angle": False, "fell": True,
+                  "max_abs_angle": 3.0}])  # fmt: skip
+    seen: dict = {}
+    first = run._divergence({"amplitude scan": scan}, seen)
+    again = run._divergence({"amplitude scan": scan, "robustness": {}}, seen)
+    assert first == again and len(first) == 1 and calls == ["amplitude scan"]
+    other = ([], [{**scan[1][0], "amplitude": 0.2}])
+    assert "0.2 m" in run._divergence({"amplitude scan": other}, seen)[0]["run"]
+    assert calls == ["amplitude scan"] * 2
+    run._divergence({"amplitude scan": scan})  # no memo: searched every time
+    assert calls == ["amplitude scan"] * 3

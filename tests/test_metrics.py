@@ -153,3 +153,48 @@ def test_stcc_and_its_bartlett_level_do_not_depend_on_the_number_of_threads(monk
     # 1-D series: one series' lags split across the threads
     r1 = m.stcc(x[0], y[0], 0.005, 2.0, 0.1, 0.25)[2]
     np.testing.assert_array_equal(r1, got[0][0][0])
+
+
+@pytest.mark.parametrize("starts", ["even", "uneven"])
+def test_bartlett_effective_samples_equal_the_formula_by_brute_force(starts):
+    """n_eff of each window from the autocorrelations summed directly (Bartlett's formula,
+    in the form of Pyper & Peterman 1998, eq. 1), for window starts evenly spaced (read
+    from a strided view) and not (gathered), over more windows than one FFT block."""
+    import validation.checks.metrics as m
+
+    dt, window = 0.01, 1.0
+    rng = np.random.default_rng(5)
+    x = rng.standard_normal((2, 3000)).cumsum(-1) * 1e-3
+    y = rng.standard_normal((2, 3000)) + 5.0  # an offset the window means remove
+    t = np.arange(0.0, 28.0, 0.2) if starts == "even" else np.sort(rng.uniform(0, 28, 70))
+    t = np.round(t / dt) * dt
+    got = m.effective_samples(x, y, dt, t, window)
+    w, lag = 100, 20
+
+    def acf(z, s):
+        z = z[s : s + w] - z[s : s + w].mean()
+        return np.array([z[: w - j] @ z[j:] for j in range(lag + 1)]) / (z @ z)
+
+    for i in range(2):
+        for k, t0 in enumerate(t):
+            s = round(t0 / dt)
+            rx, ry = acf(x[i], s), acf(y[i], s)
+            j = np.arange(1, lag + 1)
+            inv = 1 / w + 2 / w * np.sum((w - j) / w * rx[1:] * ry[1:])
+            assert got[i, k] == pytest.approx(np.clip(1 / inv, 2, w), rel=1e-10)
+
+
+def test_dominant_peaks_each_equals_dominant_peaks_at_each_dominance():
+    from validation.checks.metrics import dominant_peaks, dominant_peaks_each
+
+    rng = np.random.default_rng(6)
+    r = rng.standard_normal((3, 40, 31))
+    r[0, 3, 5], r[1, :2] = np.nan, np.nan  # a NaN lag, windows of NaN
+    lags = np.arange(31) * 0.01
+    for sig in (0.3, rng.random((3, 40))):
+        each = dominant_peaks_each(r, lags, (0.5, 0.8, 0.95), sig)
+        for dom, got in zip((0.5, 0.8, 0.95), each, strict=True):
+            want = dominant_peaks(r, lags, dom, sig)
+            for f in ("tau_hat", "no_peak", "boundary_max"):
+                np.testing.assert_array_equal(getattr(got, f), getattr(want, f))
+        assert not np.array_equal(each[0].tau_hat, each[2].tau_hat, equal_nan=True)

@@ -348,6 +348,7 @@ def run_validation(
     worker = spawn_figure_worker(out_dir) if figures and not resume else None
     drawing = None
     sent: list[str] = []  # the paper figures given to the figure process
+    seen: dict[str, tuple] = {}  # each stage's divergence rows, searched once (_divergence)
 
     def compute(name: str) -> Any:
         if name == "conformance and anchors":
@@ -385,7 +386,7 @@ def run_validation(
         nonlocal engine_record
         kept = {k: state[k] for k in done}
         partial = _results(profile, kept, {k: timings[k] for k in done}, workers, t0,
-                           model_files, environment)  # fmt: skip
+                           model_files, environment, seen)  # fmt: skip
         engine_record = engine_record or _engine_record(engine, integrator, model_files)
         partial.update(engine=engine_record)
         partial.update(partial=True, stages_done=list(done), stages_reused=list(reused))
@@ -442,7 +443,7 @@ def run_validation(
             write_partial()
             raise RunInterrupted(list(done), out_dir) from exc
         _write_crash(out_dir, name, exc, _results(profile, state, timings, workers, t0,
-                                                  model_files, environment),
+                                                  model_files, environment, seen),
                      done, reused)  # fmt: skip
         raise StageCrashed(name, f"{type(exc).__name__}: {exc}", list(done), out_dir) from exc
     except BaseException:
@@ -453,7 +454,7 @@ def run_validation(
         stop_clips(rendering or [])  # the figures stage was reused, or the run stopped
         stop_paper_figures(drawing or worker)
     bar.close()
-    results = _results(profile, state, timings, workers, t0, model_files, environment)
+    results = _results(profile, state, timings, workers, t0, model_files, environment, seen)
     results.update(engine=engine_record or _engine_record(engine, integrator, model_files))
     results.update(partial=False, stages_done=list(done), stages_reused=list(reused))
     results.update(cpu_s=dict(cpu))
@@ -725,18 +726,42 @@ def finish_clips(rendering: list[tuple[Path, Any, Any]]) -> list[Path]:
     return out
 
 
-def _divergence(state: dict[str, Any]) -> list[dict]:
+#: the stages whose runs are searched for divergence, in the order ``results.json`` lists them
+DIVERGENCE_STAGES = ("time-series agreement", "amplitude scan", "RMS and velocity",
+                     "rod-length study")  # fmt: skip
+
+
+def _divergence(state: dict[str, Any], seen: dict[str, tuple] | None = None) -> list[dict]:
     """Where runs of the finished stages diverged or left the small-angle regime.
 
     Time series at the paper's gains (both engines, every realisation), the
-    amplitude scan (whose large amplitudes leave the small angles on purpose)
-    and the rod-length study (per grid point).
+    amplitude scan (whose large amplitudes leave the small angles on purpose),
+    the RMS runs and the rod-length study (per grid point).  ``seen`` (stage name ->
+    (its value, its rows)) keeps each stage's rows across the calls of one run: the
+    partial ``results.json`` written after every stage searches a stage's trajectories
+    once, not once per later stage (0.05 s a call for the quick profile's time series).
     """
+    out: list[dict] = []
+    for name in DIVERGENCE_STAGES:
+        if name not in state:
+            continue
+        if seen is not None and name in seen and seen[name][0] is state[name]:
+            out += seen[name][1]
+            continue
+        rows = _stage_divergence(name, state[name])
+        if seen is not None:
+            seen[name] = (state[name], rows)
+        out += rows
+    return out
+
+
+def _stage_divergence(name: str, value: Any) -> list[dict]:
+    """:func:`_divergence`'s rows of one stage ``name`` from its value."""
     from validation.checks.divergence import pendulum_length, summary, trajectory_events
 
     out: list[dict] = []
-    if "time-series agreement" in state:
-        for model, d in state["time-series agreement"][1].items():
+    if name == "time-series agreement":
+        for model, d in value[1].items():
             for side in ("full", "reduced"):
                 tr = d[side]
                 p = BalanceParams(**{k: tr.attrs[k] for k in
@@ -746,8 +771,8 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
                 if line:
                     out.append({"stage": "time-series agreement", "run": f"{model} {side}",
                                 "summary": line, "events": [e.as_dict() for e in ev]})  # fmt: skip
-    if "amplitude scan" in state:
-        for r in state["amplitude scan"][1]:
+    elif name == "amplitude scan":
+        for r in value[1]:
             if r.get("engine_left_regime"):
                 out.append({"stage": "amplitude scan", "run": f"{r['model']} amplitude "
                             f"{r['amplitude']:g} m", "summary": "the engine left the small-angle "
@@ -760,13 +785,13 @@ def _divergence(state: dict[str, Any]) -> list[dict]:
                             f"{r['amplitude']:g} m", "summary": f"{what}: largest |theta| "
                             f"{r['max_abs_angle']:.3g} rad (intended: the scan looks for the "
                             "breakdown)", "intended": True})  # fmt: skip
-    if "RMS and velocity" in state:
+    elif name == "RMS and velocity":
         from validation.checks.divergence import rms_divergence
 
         p = BalanceParams(beta=1.0)  # L = g / alpha does not depend on the gain
-        out += rms_divergence(state["RMS and velocity"][1], pendulum_length(p))
-    if "rod-length study" in state:
-        ds = state["rod-length study"][2]
+        out += rms_divergence(value[1], pendulum_length(p))
+    elif name == "rod-length study":
+        ds = value[2]
         if "divergence_time" in ds:
             t = ds["divergence_time"]
             dims = [d for d in t.dims if d != "realization"]
@@ -791,9 +816,11 @@ def _results(
     t0: float,
     model_files: dict[str, str] | None,
     environment: dict[str, Any],
+    seen: dict[str, tuple] | None = None,
 ) -> dict[str, Any]:
     """The results dictionary from the stages finished so far (in stage order);
-    ``environment``: :func:`validation.cli.ci_options.run_environment` of the run."""
+    ``environment``: :func:`validation.cli.ci_options.run_environment` of the run;
+    ``seen``: :func:`_divergence`'s rows of the stages already searched."""
     checks, paper_rows = [], []
     scan_rows, rod_rows, figure_files = [], [], []
     robust, nonlinear = None, None
@@ -822,7 +849,7 @@ def _results(
             rod_rows = v[1]
         elif name == "figures":
             figure_files = v
-    divergence = _divergence(state)
+    divergence = _divergence(state, seen)
     counts = {s: sum(ch.status == s for ch in checks) for s in (PASS, FAIL, INCONCLUSIVE)}
     if any(ch.status == NOT_APPLICABLE for ch in checks):  # a tier's checks that do not judge
         counts[NOT_APPLICABLE] = sum(ch.status == NOT_APPLICABLE for ch in checks)

@@ -482,26 +482,41 @@ def dominant_peaks(
 
     ``r`` is (..., lags); every output is (...).
     """
+    return dominant_peaks_each(r, lags, (dominance,), significance)[0]
+
+
+def dominant_peaks_each(
+    r: np.ndarray,
+    lags: np.ndarray,
+    dominances: Sequence[float],
+    significance: float | np.ndarray = 0.0,
+) -> list[DominantPeaks]:
+    """:func:`dominant_peaks` at each of ``dominances``, in order: the peaks, the largest
+    R and its lag found once for all of them (the robustness table's dominance choices;
+    each result equals :func:`dominant_peaks`' at that dominance alone)."""
     r = np.asarray(r, dtype=float)
     sig = np.asarray(significance, dtype=float)
     if sig.ndim:
         sig = sig[..., None]
+    lags = np.asarray(lags)
     with np.errstate(invalid="ignore"):
         ranked = np.where(np.isnan(r), -np.inf, r)  # a NaN lag never the largest
         rmax = ranked.max(axis=-1, keepdims=True)
         peak = np.zeros(r.shape, dtype=bool)
         peak[..., 1:-1] = (r[..., 1:-1] > r[..., :-2]) & (r[..., 1:-1] >= r[..., 2:])
-        ok = peak & (r >= dominance * rmax) & (r > sig) & (rmax > 0)
-    has = ok.any(axis=-1)
-    first = np.argmax(ok, axis=-1)
+        peak &= (r > sig) & (rmax > 0)
     arg = np.argmax(ranked, axis=-1)
     finite = np.isfinite(r).all(axis=-1)
     boundary = finite & ((arg == 0) | (arg == r.shape[-1] - 1))
-    return DominantPeaks(
-        tau_hat=np.where(has, np.asarray(lags)[first], np.nan),
-        no_peak=~has,
-        boundary_max=boundary,
-    )
+    out = []
+    for dominance in dominances:
+        with np.errstate(invalid="ignore"):
+            ok = peak & (r >= dominance * rmax)
+        has = ok.any(axis=-1)
+        first = np.argmax(ok, axis=-1)
+        out.append(DominantPeaks(tau_hat=np.where(has, lags[first], np.nan), no_peak=~has,
+                                 boundary_max=boundary))  # fmt: skip
+    return out
 
 
 def first_dominant_peak(
@@ -528,31 +543,44 @@ def stcc_significance(window_samples: int, z: float = 3.0) -> float:
 
 #: windows per FFT call of :func:`_window_acf`: the transforms' working set then stays in
 #: the CPU's cache (measured: 1.6x faster than one call over all 2400 windows of a 600 s
-#: series, at window lengths of 1000 and 2000 samples)
+#: series, at window lengths of 1000 and 2000 samples; 16 to 128 rows take the same time)
 _ACF_ROWS = 64
 
 
-def _window_acf(z: np.ndarray, w: int, max_lag: int | None = None) -> np.ndarray:
-    """Sample autocorrelations r(j), j = 0..max_lag (default w - 1), of each row of ``z``
-    (rows, w).
+def _window_acf(x: np.ndarray, starts: np.ndarray, w: int, max_lag: int) -> np.ndarray:
+    """Sample autocorrelations r(j), j = 0..max_lag, of the windows x[s:s + w] of one
+    series ``x`` (samples,), for each start s in ``starts``: (windows, max_lag + 1).
 
     The standard (biased) estimator: r(j) = sum_{s<w-j} z'_s z'_{s+j} / sum z'^2,
-    z' the row minus its mean; via an FFT zero-padded to at least w + max_lag points
+    z' the window minus its mean; via an FFT zero-padded to at least w + max_lag points
     (the circular correlation then equals the linear one at every lag returned), in
-    blocks of :data:`_ACF_ROWS` rows.
+    blocks of :data:`_ACF_ROWS` windows.  Each block's centred windows are written into
+    one zero-padded buffer, read from a strided view of ``x`` where the starts are evenly
+    spaced (no copy of the overlapping windows): the same numbers as centring a copy and
+    letting the FFT pad it, 1.5-1.9x faster (7 December, 600 s at 5 ms, windows of 500
+    to 2000 samples every 50).
     """
     from scipy import fft
 
-    m = w - 1 if max_lag is None else min(int(max_lag), w - 1)
+    m = min(int(max_lag), w - 1)
     nfft = fft.next_fast_len(w + m, real=True)
-    out = np.empty((z.shape[0], m + 1))
-    for a in range(0, z.shape[0], _ACF_ROWS):
-        block = z[a : a + _ACF_ROWS]
-        f = fft.rfft(block - block.mean(axis=-1, keepdims=True), nfft, axis=-1)
-        f *= np.conj(f)
-        ac = fft.irfft(f, nfft, axis=-1)[..., : m + 1]
+    windows = np.lib.stride_tricks.sliding_window_view(x, w)
+    step = np.diff(starts)
+    even = step.size > 0 and step[0] > 0 and bool((step == step[0]).all())
+    out = np.empty((starts.size, m + 1))
+    buf = np.zeros((min(_ACF_ROWS, starts.size), nfft))
+    for a in range(0, starts.size, _ACF_ROWS):
+        k = min(_ACF_ROWS, starts.size - a)
+        rows = (windows[starts[a] : starts[a + k - 1] + 1 : step[0]] if even
+                else windows[starts[a : a + k]])  # fmt: skip
+        block = buf[:k]
+        np.subtract(rows, rows.mean(axis=-1, keepdims=True), out=block[:, :w])
+        block[:, w:] = 0.0
+        f = fft.rfft(block, axis=-1)
+        np.multiply(f, f.conj(), out=f)
+        ac = fft.irfft(f, nfft, axis=-1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            out[a : a + _ACF_ROWS] = ac / ac[..., :1]
+            np.divide(ac[:, : m + 1], ac[:, :1], out=out[a : a + k])
     return out
 
 
@@ -586,9 +614,8 @@ def effective_samples(
     out = np.empty((xf.shape[0], starts.size))
 
     def row(i: int) -> None:
-        xw = np.lib.stride_tricks.sliding_window_view(xf[i], w)[starts]
-        yw = np.lib.stride_tricks.sliding_window_view(yf[i], w)[starts]
-        s = (_window_acf(xw, w, m)[:, 1:] * _window_acf(yw, w, m)[:, 1:] * weight).sum(-1)
+        rx, ry = _window_acf(xf[i], starts, w, m), _window_acf(yf[i], starts, w, m)
+        s = (rx[:, 1:] * ry[:, 1:] * weight).sum(-1)
         inv = 1.0 / w + 2.0 / w * s
         with np.errstate(divide="ignore", invalid="ignore"):
             out[i] = np.clip(1.0 / inv, 2.0, w)

@@ -452,9 +452,9 @@ def peak_grid(profile: Profile, threads: int | None, grid: dict) -> list[dict]:
                     for m, (t, lags, r, lev) in stc.items():
                         keep = t + window + max_lag <= frac * profile.peak_duration + 1e-9
                         sig = lev[:, keep] if sig_rule == "bartlett" else 0.0
-                        peaks[m] = {dom: metrics.dominant_peaks(r[:, keep, :nl], lags[:nl], dom,
-                                                                sig)
-                                    for dom in grid["dominance"]}  # fmt: skip
+                        each = metrics.dominant_peaks_each(r[:, keep, :nl], lags[:nl],
+                                                           grid["dominance"], sig)  # fmt: skip
+                        peaks[m] = dict(zip(grid["dominance"], each, strict=True))
                     for dom in grid["dominance"]:
                         ps, pc = peaks["single"][dom], peaks["coupled"][dom]
                         for width in grid["bins"]:
