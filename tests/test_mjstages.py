@@ -76,3 +76,38 @@ def test_lambda1_is_bit_identical_with_every_stage(model):
     a = lyapunov_full(Scenario(model, p, 5.0, 2, 4))
     b = lyapunov_full(Scenario(model, p, 5.0, 2, 4), body=RigidBody(backend=EveryStage))
     np.testing.assert_array_equal(a.per_realization, b.per_realization)
+
+
+@pytest.mark.parametrize("model", ["single", "coupled"])
+def test_a_rollout_on_threads_keeps_one_pool_and_the_one_thread_states(model, monkeypatch):
+    """MujocoRollout on 2 threads starts one thread pool for all its calls (not one per
+    call, as ``mujoco.rollout.rollout`` does), and every step's state is the one of a
+    single thread's rollout, bit for bit."""
+    from mujoco import rollout
+
+    if not hasattr(rollout, "Rollout"):
+        pytest.skip("mujoco.rollout.Rollout needs MuJoCo >= 3.3.1")
+    started = []
+    real = rollout.Rollout.__init__
+    monkeypatch.setattr(rollout.Rollout, "__init__",
+                        lambda self, **kw: started.append(kw) or real(self, **kw))  # fmt: skip
+    m = build(model, CIPParams())
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    d = mujoco.MjData(m)
+    d.qpos[:] = 0.05
+    s0 = np.empty(mujoco.mj_stateSize(m, spec))
+    mujoco.mj_getState(m, d, s0, spec)
+    ctrl = np.random.default_rng(3).standard_normal((5, 40, m.nu))
+    got = {}
+    for threads in (1, 2):
+        backend = MujocoRollout(m, 5, threads)
+        state, chunks = np.tile(s0, (5, 1)), []
+        for k in range(0, 40, 10):  # four calls
+            out = np.empty((5, 10, s0.size))
+            backend(state, ctrl[:, k : k + 10], out)
+            state = out[:, -1].copy()
+            chunks.append(out)
+        got[threads] = np.concatenate(chunks, axis=1)
+    assert started == [{"nthread": 0}, {"nthread": 2}]
+    np.testing.assert_array_equal(got[1], got[2])
+    assert np.abs(got[1][:, -1] - got[1][:, 0]).max() > 1e-6  # the states moved
