@@ -123,7 +123,13 @@ def simulate_full(
             "time_window": [step * params.dt, (step + n) * params.dt],
             "reason": "non-finite state" if not finite.all() else f"{nwarn} MuJoCo warning(s)",
         })  # fmt: skip
-        stop[0] = min(stop[0], step + n)
+        end = step + n
+        if not finite.all():
+            # the first step whose state is non-finite, in any realisation: the samples
+            # before it (each the state before its step) are all finite, those after are not
+            bad = int(np.argmax(~np.isfinite(states).all(axis=(0, 2))))
+            end = step + bad + 1
+        stop[0] = min(stop[0], end)
         return False
 
     run_blocks(noise, n_steps, work, threads=threads, chunk_steps=params.delay_steps,
@@ -134,7 +140,7 @@ def simulate_full(
     if first:
         out = {f: a[:, :n_rec] for f, a in out.items()}
         warnings.warn(
-            f"MuJoCo run stopped: {first['reason']} in realisation {first['realization']} "
+            f"{body.name} run stopped: {first['reason']} in realisation {first['realization']} "
             f"between t = {first['time_window'][0]:.4g} and {first['time_window'][1]:.4g} s; "
             f"returning the {n_rec} samples computed before it",
             DivergenceWarning,

@@ -80,3 +80,33 @@ def test_the_reference_reads_every_stick_of_the_coupled_model():
     assert not row["small_angle"] and not row["engine_left_regime"]
     status = {c.name: c.status for c in checks}
     assert status["agreement.small_angle_regime.coupled"] == "pass"
+
+
+def test_an_engine_run_stopped_early_is_judged_over_the_common_span(monkeypatch):
+    """An engine run that stopped where its state went non-finite (Exudyn at 0.3 m, quick
+    profile, seed 7: 181 of 2000 samples) holds fewer samples than the reference and the
+    twins: the scan compares every series over their common span, and the run's row is
+    a breakdown beyond the small-angle regime, not a crash of the stage."""
+    import validation.checks.agreement as agreement
+    from cipcore.schema import Trajectory
+
+    real = agreement.run_pair
+    keep = 181
+
+    def stopped(scn, target, **kw):
+        full, red = real(scn, target, **kw)
+        if scn.amplitude < 0.3:
+            return full, red
+        short = Trajectory(full.time[:keep], {k: v[:, :keep] for k, v in full.data.items()},
+                           {**full.attrs, "max_abs_angle": [np.inf] * full.shape[0]})  # fmt: skip
+        return short, red
+
+    monkeypatch.setattr(agreement, "run_pair", stopped)
+    profile = replace(PROFILES["smoke"], seed=7, scan_amplitudes=(1e-5, 0.3))
+    checks, rows = amplitude_scan(profile, 2)
+    late = [r for r in rows if r["amplitude"] == 0.3]
+    assert len(late) == 2 and all(r["fell"] and not r["small_angle"] for r in late)
+    assert all(np.isfinite(r["twin_relative_l2"]) for r in late)
+    status = {c.name: c.status for c in checks}
+    assert status["agreement.small_angle_regime.single"] == "pass"
+    assert status["agreement.small_angle_regime.coupled"] == "pass"

@@ -264,6 +264,37 @@ def test_divergence_stops_and_keeps_what_was_computed():
         np.testing.assert_array_equal(again["balancing_error"], tr["balancing_error"])
 
 
+def test_a_non_finite_state_mid_chunk_returns_only_the_finite_samples_before_it():
+    """An engine whose state goes non-finite inside a chunk (Exudyn at the quick profile's
+    largest scan amplitude, seed 7) stops there: the trajectory ends with the last sample
+    before the first non-finite state, not at the chunk's end with NaNs in it, and the
+    warning names the engine."""
+    from cip.runner import MujocoRollout
+
+    at = 1234  # the state after this global step is non-finite in realisation 1
+
+    class NaNFrom(MujocoRollout):
+        def __init__(self, *args):
+            super().__init__(*args)
+            self.steps = 0
+
+        def __call__(self, state, ctrl, out):
+            super().__call__(state, ctrl, out)
+            k = at - self.steps
+            if k < ctrl.shape[1]:
+                out[1, max(k, 0) :] = np.nan
+            self.steps += ctrl.shape[1]
+
+    scn = Scenario("single", BalanceParams(beta=21.0), 3.0, 2, amplitude=0.01)
+    body = RigidBody(backend=NaNFrom, name="nan-engine")
+    with pytest.warns(DivergenceWarning, match="nan-engine run stopped: non-finite state"):
+        tr = simulate_full(scn, body=body, recording=Recording(decimate=5),
+                           execution=Execution(threads=1))  # fmt: skip
+    assert tr.time.size == -(-(at + 1) // 5)  # samples at steps 0, 5, ..., 1230: 247
+    assert np.isfinite(tr["balancing_error"]).all()
+    assert tr.attrs["diverged"]["reason"] == "non-finite state"
+
+
 def test_bad_input():
     with pytest.raises(ParameterError, match="amplitude"):
         simulate_full(Scenario("single", P, 1.0, amplitude=0.5))

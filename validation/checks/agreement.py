@@ -1057,6 +1057,10 @@ def amplitude_scan(
             env = run_envelope_twin(scn, recording=rec, threads=threads, integrator=stepper)
             ef, er = full["balancing_error"].astype(float), red["balancing_error"].astype(float)
             et, ee = twin["balancing_error"], env["balancing_error"]
+            # an engine run stopped where its state went non-finite (the breakdown the
+            # scan looks for) holds fewer samples: every series over their common span
+            span = min(x.shape[1] for x in (ef, er, et, ee))
+            ef, er, et, ee = (x[:, :span] for x in (ef, er, et, ee))
             rel = trajectory_distance(full, red)
             dt = full.sample_interval
             log_rms = [np.log10(metrics.rms(x[..., 0])) for x in (ef, er, et, ee)]
