@@ -102,9 +102,9 @@ class MujocoRollout:
         self.nsensordata = model.nsensordata
         # one thread pool for every call (mujoco.rollout.Rollout, MuJoCo >= 3.3.1), not
         # one started and joined per call as mujoco.rollout.rollout does: 55-325 us a
-        # call with 2 threads against 7-26 us with one, where the refinement check and the
-        # float32 stand-in call once per step.  A realisation's steps do not depend on
-        # the thread that runs them.  The pool ends with this object.
+        # one-step call with 2 threads against 7-26 us with one, where the closed-loop
+        # check steps one control interval a call.  A realisation's steps do not depend
+        # on the thread that runs them.  The pool ends with this object.
         pool = getattr(rollout, "Rollout", None)
         self._rollout = (pool(nthread=threads if threads > 1 else 0).rollout
                          if pool is not None else rollout.rollout)  # fmt: skip

@@ -568,6 +568,8 @@ def _window_acf(x: np.ndarray, starts: np.ndarray, w: int, max_lag: int) -> np.n
     step = np.diff(starts)
     even = step.size > 0 and step[0] > 0 and bool((step == step[0]).all())
     out = np.empty((starts.size, m + 1))
+    # the padding, columns w.., stays zero: only the first w columns are written, and
+    # the transform reads the buffer without overwriting it
     buf = np.zeros((min(_ACF_ROWS, starts.size), nfft))
     for a in range(0, starts.size, _ACF_ROWS):
         k = min(_ACF_ROWS, starts.size - a)
@@ -575,8 +577,7 @@ def _window_acf(x: np.ndarray, starts: np.ndarray, w: int, max_lag: int) -> np.n
                 else windows[starts[a : a + k]])  # fmt: skip
         block = buf[:k]
         np.subtract(rows, rows.mean(axis=-1, keepdims=True), out=block[:, :w])
-        block[:, w:] = 0.0
-        f = fft.rfft(block, axis=-1)
+        f = fft.rfft(block, axis=-1, overwrite_x=False)
         np.multiply(f, f.conj(), out=f)
         ac = fft.irfft(f, nfft, axis=-1)
         with np.errstate(divide="ignore", invalid="ignore"):
