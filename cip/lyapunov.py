@@ -17,10 +17,13 @@ v_Mi^2 + (L theta_i')^2 + sum over the buffer of e^2 + e'^2).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from cip.model import CIPParams
 from cip.runner import CIPRunner, RigidBody, RolloutBackend
+from cip.simulate import DivergenceWarning
 from cipcore.driver import realization_blocks, run_blocks
 from cipcore.models import get_model
 from cipcore.noise import ArrayNoise, GainNoise, StackedNoise, make_noise
@@ -82,6 +85,20 @@ class _Renormaliser:
         r.edot_hist *= c[:, None, None]
         self.mean = None
 
+    def rest(self, r: CIPRunner, rows: np.ndarray) -> None:
+        """Put realisations ``rows`` (a boolean mask) at the upright rest state, with no
+        deviation and an empty delay history: a realisation whose state went non-finite
+        is stepped on there (its exponent is already +inf) so that the engine never
+        receives a non-finite state, and the other realisations run to the end."""
+        st = r.state
+        idx = np.flatnonzero(rows)
+        sub = st[idx]
+        sub[~np.isfinite(sub)] = 0.0
+        sub[:, self.cols] = 0.0
+        st[idx] = sub
+        r.e_hist[idx] = 0.0
+        r.edot_hist[idx] = 0.0
+
 
 def lyapunov_full(
     scenario: Scenario,
@@ -108,6 +125,15 @@ def lyapunov_full(
     its initial deviation from its own stream (``noise.stream(r)``), so its exponent is
     the one it has run alone.  The step-bound engines (a batch of worlds per step) then
     step once for all of them, and the driver's threads share them evenly.
+
+    A realisation whose state goes non-finite (an engine's fault: the deviation stays
+    in the linear regime) gets the exponent +inf and its time in ``diverged_at``; it
+    rests upright from then on, so the engine never receives a non-finite state, and
+    every other realisation runs to the end with the exponent it has alone, whatever
+    the threads.
+
+    The function is long because the chunk callback (the renormalisation, and a
+    realisation gone non-finite put at rest) shares the run's arrays by closure.
     """
     model, params, seed = scenario.model, scenario.params, scenario.seed
     threads, backend, mj_model = execution.threads, body.backend, body.mj_model
@@ -137,26 +163,50 @@ def lyapunov_full(
     # accumulation starts with the first chunk that ends after the transient
     start = (transient_steps // d) * d
 
+    # per realisation: the end (s) of the chunk after which its state was first
+    # non-finite (NaN: never); from then on it rests upright and its exponent is +inf
+    diverged_at = np.full(n_realizations, np.nan)
+
     def work(block: slice, xi: np.ndarray, step: int) -> None:
         r, renorm = runners[block.start]
         n = xi.shape[1]
         r.advance(xi)
         norm = renorm.norm(r)
-        if not np.all(np.isfinite(norm)):
-            raise FloatingPointError(f"non-finite state at t = {(step + n) * params.dt:.4g} s")
+        live = np.isnan(diverged_at[block]) & np.isfinite(norm)
+        if live.all():
+            if step + n > transient_steps:
+                logsum[block] += np.log(norm / epsilon)
+            renorm.rescale(r, epsilon / norm)
+            return
+        newly = ~live & np.isnan(diverged_at[block])
+        diverged_at[block][newly] = (step + n) * params.dt
+        kept = np.where(live, norm, epsilon)
         if step + n > transient_steps:
-            logsum[block] += np.log(norm / epsilon)
-        renorm.rescale(r, epsilon / norm)
+            logsum[block] += np.where(live, np.log(kept / epsilon), 0.0)
+        renorm.rescale(r, np.where(live, epsilon / kept, 0.0))
+        renorm.rest(r, ~live)
 
     run_blocks(noise, n_steps, work, threads=threads, chunk_steps=d,
                progress=execution.progress and "mujoco lyapunov")  # fmt: skip
     per = logsum / ((n_steps - start) * params.dt)
-    mean, ci = mean_ci95(per)
+    fell = np.isfinite(diverged_at)
+    per[fell] = np.inf
+    if fell.any():
+        k = int(np.nanargmin(diverged_at))
+        warnings.warn(
+            f"{body.name} lambda1 run: non-finite state in {int(fell.sum())} of "
+            f"{n_realizations} realisations, first realisation {k} by t = {diverged_at[k]:.4g} "
+            f"s; their exponents are +inf, the others ran to the end",
+            DivergenceWarning,
+            stacklevel=2,
+        )
+    with np.errstate(invalid="ignore"):  # an infinite exponent: an infinite mean, no interval
+        mean, ci = mean_ci95(per)
     return LyapunovResult(
         lambda1=mean, ci95=ci, per_realization=per, duration=duration, transient=transient,
         model=model, params={**params.as_dict(), "physical": physical.as_dict(),
                              **({} if gains is None else {"betas": gains.tolist()})},
-        seed=seed,
+        seed=seed, diverged_at=diverged_at if fell.any() else None,
     )  # fmt: skip
 
 

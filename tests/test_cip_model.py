@@ -295,6 +295,59 @@ def test_a_non_finite_state_mid_chunk_returns_only_the_finite_samples_before_it(
     assert tr.attrs["diverged"]["reason"] == "non-finite state"
 
 
+class _NaNFrom:
+    """A MuJoCo backend whose realisation ``row`` (of its block) turns non-finite after
+    global step ``at``, made for one (at, row)."""
+
+    @staticmethod
+    def make(at: int, row: int):
+        from cip.runner import MujocoRollout
+
+        class NaNFrom(MujocoRollout):
+            def __init__(self, *args):
+                super().__init__(*args)
+                self.steps = 0
+
+            def __call__(self, state, ctrl, out):
+                super().__call__(state, ctrl, out)
+                k = at - self.steps
+                if k < ctrl.shape[1] and row < out.shape[0]:
+                    out[row, max(k, 0) :] = np.nan
+                self.steps += ctrl.shape[1]
+
+        return NaNFrom
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_non_finite_benettin_run_is_an_infinite_exponent_and_the_others_run_on(threads):
+    """An engine whose Benettin run goes non-finite in one realisation: that realisation's
+    exponent is +inf and the time is recorded (the end of the renormalisation interval),
+    the run goes on (it used to raise FloatingPointError and crash the lambda1 stage), and
+    every other realisation's exponent is the clean run's bit for bit, whatever the
+    threads (each block's first realisation goes non-finite: with 2 threads, 0 and 2)."""
+    p = BalanceParams(beta=21.0)
+    scn = Scenario("single", p, 3.0, 4, seed=5)
+    clean = lyapunov_full(scn, execution=Execution(threads=1))
+    assert clean.diverged_at is None and "diverged_at" not in clean.as_dict()
+    body = RigidBody(backend=_NaNFrom.make(1234, 0), name="nan-engine")
+    with pytest.warns(DivergenceWarning, match="nan-engine lambda1 run: non-finite state"):
+        got = lyapunov_full(scn, body=body, execution=Execution(threads=threads))
+    bad = [0] if threads == 1 else [0, 2]
+    end = -(-1235 // p.delay_steps) * p.delay_steps * p.dt  # the interval holding step 1234
+    assert np.isinf(got.per_realization[bad]).all() and got.lambda1 == np.inf
+    np.testing.assert_allclose(got.diverged_at[bad], end, rtol=1e-12)
+    good = [k for k in range(4) if k not in bad]
+    np.testing.assert_array_equal(got.per_realization[good], clean.per_realization[good])
+    assert np.isnan(got.diverged_at[good]).all()
+    assert "non-finite in" in got.divergence() and got.as_dict()["diverged_at"][bad[0]] > 0
+    part = got.part(slice(1, 2), 21.0, 5)  # a batch's part keeps its realisations' times
+    assert part.diverged_at is None and got.part(slice(2, 4), 21.0, 5).divergence() == (
+        None
+        if threads == 1
+        else f"the engine's state went non-finite in 1 of 2 realisations (0 by t = {end:.4g} s)"
+    )
+
+
 def test_bad_input():
     with pytest.raises(ParameterError, match="amplitude"):
         simulate_full(Scenario("single", P, 1.0, amplitude=0.5))

@@ -220,3 +220,35 @@ def test_an_engine_duration_out_of_range_is_one_line() -> None:
     with pytest.raises(ParameterError, match=r"mf_engine_duration must be 0 or in \[0.112, "
                                              r"lyapunov_duration = 8\] s, got 9"):  # fmt: skip
         lyapunov_checks(_profile(mf_engine_duration=9.0), 1)
+
+
+@pytest.mark.parametrize("mf", [3, 0])
+def test_an_engine_gone_non_finite_fails_lambda1_and_the_run_goes_on(monkeypatch, mf) -> None:
+    """An engine whose Benettin state goes non-finite (the multifidelity allocation and the
+    plain one): the lambda1 check fails and says where, the stage's row keeps the
+    realisations' times and the run's divergence summary names them (the stage used to
+    crash with FloatingPointError and lose the rest of the run)."""
+    import numpy as np
+
+    from cip.runner import MujocoRollout
+    from cip.simulate import DivergenceWarning
+    from validation.run import _stage_divergence
+
+    real = MujocoRollout.__call__
+
+    def nan_after_2s(self, state, ctrl, out):
+        real(self, state, ctrl, out)
+        self.steps = getattr(self, "steps", 0) + ctrl.shape[1]
+        if self.steps > 2000:
+            out[0] = np.nan
+
+    monkeypatch.setattr(MujocoRollout, "__call__", nan_after_2s)
+    with pytest.warns(DivergenceWarning, match="mujoco lambda1 run: non-finite state"):
+        (check,), data = lyapunov_checks(_profile(mf_engine_realizations=mf), 1)
+    assert check.status == "fail" and check.values["full"]["value"] == np.inf
+    assert "the engine's state went non-finite in 1 of" in check.details
+    (row,) = data["lyapunov"]
+    at = row["full"]["diverged_at"]
+    assert at[0] == pytest.approx(2.0 + 0.1) and all(t is None for t in at[1:])
+    (line,) = _stage_divergence("lambda1 agreement", (None, data))
+    assert line["run"] == "coupled beta 20.5 engine" and "realisations [0] of" in line["summary"]

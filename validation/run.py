@@ -728,7 +728,7 @@ def finish_clips(rendering: list[tuple[Path, Any, Any]]) -> list[Path]:
 
 #: the stages whose runs are searched for divergence, in the order ``results.json`` lists them
 DIVERGENCE_STAGES = ("time-series agreement", "amplitude scan", "RMS and velocity",
-                     "rod-length study")  # fmt: skip
+                     "rod-length study", "lambda1 agreement")  # fmt: skip
 
 
 def _divergence(state: dict[str, Any], seen: dict[str, tuple] | None = None) -> list[dict]:
@@ -736,7 +736,8 @@ def _divergence(state: dict[str, Any], seen: dict[str, tuple] | None = None) -> 
 
     Time series at the paper's gains (both engines, every realisation), the
     amplitude scan (whose large amplitudes leave the small angles on purpose),
-    the RMS runs and the rod-length study (per grid point).  ``seen`` (stage name ->
+    the RMS runs, the rod-length study (per grid point) and the engine's lambda1 runs
+    (a Benettin run whose state went non-finite).  ``seen`` (stage name ->
     (its value, its rows)) keeps each stage's rows across the calls of one run: the
     partial ``results.json`` written after every stage searches a stage's trajectories
     once, not once per later stage (0.05 s a call for the quick profile's time series).
@@ -805,6 +806,16 @@ def _stage_divergence(name: str, value: Any) -> list[dict]:
                     out.append({"stage": "rod-length study", "run": where,
                                 "summary": f"realisations {bad.tolist()} of {times.size} "
                                 f"diverged (first at t = {np.nanmin(times):.4g} s)"})  # fmt: skip
+    elif name == "lambda1 agreement":
+        for row in value[1]["lyapunov"]:
+            at = row["full"].get("diverged_at")
+            if at is not None:
+                bad = [k for k, t in enumerate(at) if t is not None]
+                out.append({"stage": "lambda1 agreement",
+                            "run": f"{row['model']} beta {row['beta']:g} engine",
+                            "summary": f"realisations {bad} of {len(at)} went non-finite "
+                            f"(first by t = {min(at[k] for k in bad):.4g} s; Benettin run, "
+                            "their exponents +inf)"})  # fmt: skip
     return out
 
 

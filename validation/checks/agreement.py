@@ -114,6 +114,7 @@ def lyapunov_checks(
                        f"engines, Benettin deviation {epsilon:g} m{note}{fallback}")  # fmt: skip
             checks.append(lambda1_check(model, p.beta, full.lambda1, full.ci95, full.sem, red,
                                         details))  # fmt: skip
+            checks[-1] = diverged_lambda1(checks[-1], full.divergence())
     return checks, {"lyapunov": rows}
 
 
@@ -131,6 +132,21 @@ def lambda1_check(model: str, beta: float, value: float, ci95, se: float, red,
         tolerance="95% CIs overlap: pass if |difference| <= larger half-width, "
         "fail if the intervals are disjoint", details=details,
     )  # fmt: skip
+
+
+def diverged_lambda1(check: Check, divergence: str | None) -> Check:
+    """``check`` failed where the engine's Benettin run went non-finite (``divergence``,
+    :meth:`cipcore.results.LyapunovResult.divergence`; None: ``check`` as it is).
+
+    A deviation renormalised to epsilon every tau stays in the linear regime, where a
+    correct engine's state is finite at every step: a non-finite one is the engine's
+    fault, not an exponent to compare (its lambda1 is +inf, and the CI-overlap rule
+    would call a non-finite mean inconclusive).
+    """
+    if divergence is None:
+        return check
+    return replace(check, status=FAIL, details=f"{check.details}; {divergence}: the exponent "
+                   "is +inf, a correct engine's state stays finite at this deviation")  # fmt: skip
 
 
 def engine_duration(profile: Profile, params: BalanceParams) -> float:
@@ -204,8 +220,17 @@ def lambda1_multifidelity(
         full = batch.part(slice(g * n, (g + 1) * n), p.beta, seed)
         t1 = time.perf_counter()
         cheap = replace(scenario, realizations=m)
-        tw = lyapunov_twin(cheap, twin, epsilon=body["epsilon"], execution=execution)
         red = lyapunov(cheap, execution=execution)
+        if full.diverged_at is not None:  # no estimate to make: the engine failed
+            details = (f"multifidelity: engine {n} x {short:g} s, seed {seed}, Benettin "
+                       f"deviation {body['epsilon']:g} m{note}; reduced model {m} x "
+                       f"{duration:g} s")  # fmt: skip
+            check = lambda1_check(model, p.beta, full.lambda1, full.ci95, full.sem, red, details)
+            out.append((diverged_lambda1(check, full.divergence()),
+                        {"model": model, "beta": p.beta, "full": full.as_dict(),
+                         "reduced": red.as_dict()}))  # fmt: skip
+            continue
+        tw = lyapunov_twin(cheap, twin, epsilon=body["epsilon"], execution=execution)
         w = engine_s * duration / short / max((time.perf_counter() - t1) / m, 1e-9)
         # the twin's pairs over the engine's duration (the first n of its m, shorter)
         pairs = tw if short == duration else lyapunov_twin(
