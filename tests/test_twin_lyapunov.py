@@ -223,7 +223,9 @@ def test_an_engine_duration_out_of_range_is_one_line() -> None:
 
 
 @pytest.mark.parametrize("mf", [3, 0])
-def test_an_engine_gone_non_finite_fails_lambda1_and_the_run_goes_on(monkeypatch, mf) -> None:
+def test_an_engine_gone_non_finite_fails_lambda1_and_the_run_goes_on(
+    monkeypatch, tmp_path, mf
+) -> None:
     """An engine whose Benettin state goes non-finite (the multifidelity allocation and the
     plain one): the lambda1 check fails and says where, the stage's row keeps the
     realisations' times and the run's divergence summary names them (the stage used to
@@ -252,3 +254,11 @@ def test_an_engine_gone_non_finite_fails_lambda1_and_the_run_goes_on(monkeypatch
     assert at[0] == pytest.approx(2.0 + 0.1) and all(t is None for t in at[1:])
     (line,) = _stage_divergence("lambda1 agreement", (None, data))
     assert line["run"] == "coupled beta 20.5 engine" and "realisations [0] of" in line["summary"]
+    if mf:  # Fig. 3 leaves the point out and says so (it raised on the interval's None)
+        import matplotlib
+
+        matplotlib.use("Agg")
+        from validation.report.document import jsonable
+        from validation.report.plots import fig_lle
+
+        assert fig_lle({}, jsonable(data["lyapunov"]), {}, tmp_path / "l.png").stat().st_size

@@ -66,12 +66,18 @@ def fig_lle(curve, points, bstar, path: Path) -> Path:
         if model in bstar:
             ax.axvline(bstar[model].beta_star, color=colours[model], ls=":", lw=1,
                        label=rf"$\beta^*$ {model} = {bstar[model].beta_star:.4g}")  # fmt: skip
+    gone = []  # the engine's runs with no finite exponent (its state went non-finite)
     for row in points:
         f = row["full"]
-        ax.errorbar(row["beta"], f["lambda1"], yerr=[[f["lambda1"] - f["ci95"][0]],
-                    [f["ci95"][1] - f["lambda1"]]], fmt="s", mfc="none",
-                    color=colours[row["model"]], capsize=3)  # fmt: skip
+        lo, hi = f["ci95"]
+        if lo is None or hi is None or not np.isfinite(f["lambda1"]):
+            gone.append(f"{row['model']} {row['beta']:g}")
+            continue
+        ax.errorbar(row["beta"], f["lambda1"], yerr=[[f["lambda1"] - lo], [hi - f["lambda1"]]],
+                    fmt="s", mfc="none", color=colours[row["model"]], capsize=3)  # fmt: skip
     ax.plot([], [], "ks", mfc="none", label="MuJoCo (95% CI)")
+    if gone:
+        ax.plot([], [], " ", label="no finite engine estimate (not drawn): " + ", ".join(gone))
     ax.axhline(5e-4, color="k", lw=0.8, ls="--", label=r"$\lambda_1 = 5\times10^{-4}$")
     ax.set_xlabel(r"feedback gain $\beta$ (1/s$^2$)")
     ax.set_ylabel(r"$\lambda_1$ (1/s)")
