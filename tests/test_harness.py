@@ -269,3 +269,33 @@ def test_divergence_searches_each_stage_once_per_run(monkeypatch):
     assert calls == ["amplitude scan"] * 2
     run._divergence({"amplitude scan": scan})  # no memo: searched every time
     assert calls == ["amplitude scan"] * 3
+
+
+def test_an_engine_gone_non_finite_fails_its_checks_and_every_stage_runs(monkeypatch, tmp_path):
+    """An engine whose state turns NaN 0.5 s into every run (in the first realisation of
+    each call's block): every stage finishes and the run fails (exit 1), not crashes
+    (exit 4). Before, the rod-length study (shapes of a stopped run against the
+    reference's), the time series (an STCC window longer than the stopped run) and lambda1
+    (FloatingPointError) each crashed the run."""
+    from cip.runner import MujocoRollout
+
+    real = MujocoRollout.__call__
+
+    def nan_after(self, state, ctrl, out):
+        real(self, state, ctrl, out)
+        done = getattr(self, "steps", 0)
+        self.steps = done + ctrl.shape[1]
+        if self.steps > 500:
+            out[0, max(500 - done, 0) :] = np.nan
+
+    monkeypatch.setattr(MujocoRollout, "__call__", nan_after)
+    with pytest.warns(RuntimeWarning):
+        code = main(["run", "--profile", "smoke", "--no-figures", "--out", str(tmp_path)])
+    res = json.loads((tmp_path / "results.json").read_text())
+    assert code == 1 and not res.get("partial") and "crashed" not in res
+    status = {c["name"]: c["status"] for c in res["checks"]}
+    assert status["agreement.lambda1.single.beta=19.5"] == FAIL
+    assert status["agreement.trajectory.coupled"] == FAIL
+    assert status["agreement.log10_rms.single"] == INCONCLUSIVE  # no estimate: NaN
+    stages = {d["stage"] for d in res["divergence"]}
+    assert {"time-series agreement", "lambda1 agreement", "rod-length study"} <= stages

@@ -269,8 +269,49 @@ def lambda1_multifidelity(
     return out
 
 
+def planned_samples(tr: Trajectory) -> int:
+    """The samples ``tr`` was planned to record (attrs ``duration``, ``dt``, ``decimate``);
+    an engine run that stopped at a non-finite state holds fewer."""
+    a = tr.attrs
+    return -(-round(float(a["duration"]) / float(a["dt"])) // int(a.get("decimate", 1)))
+
+
+def no_estimate(m: SeriesMetrics) -> SeriesMetrics:
+    """``m`` with every estimate NaN, its coordinates (band centres, frequencies, STCC
+    window times, the fit's frequency range) kept: the shapes of a whole run's metrics."""
+    from dataclasses import fields
+
+    def nan(a):
+        return np.full(np.shape(a), np.nan)
+
+    fit = m.slopes
+    return replace(
+        m, log_rms=nan(m.log_rms), band_log_power=nan(m.band_log_power),
+        slopes=replace(fit, **{f.name: float("nan") for f in fields(fit)
+                               if f.name not in ("fmin", "fmax")}),
+        spectrum=(m.spectrum[0], nan(m.spectrum[1])), tau_hat=nan(m.tau_hat),
+        tau_hat_median=nan(m.tau_hat_median), fast_fraction=nan(m.fast_fraction),
+        log_velocity_sd=nan(m.log_velocity_sd),
+    )  # fmt: skip
+
+
 def series_metrics(tr: Trajectory, profile: Profile, tau: float, segment: float) -> SeriesMetrics:
-    """Metrics of controller 1's balancing error and velocities (paper section 3)."""
+    """Metrics of controller 1's balancing error and velocities (paper section 3).
+
+    An engine run that stopped early (a non-finite state: ``attrs["diverged"]``, fewer
+    samples than planned) has no estimate: every metric NaN (:func:`no_estimate`), with
+    the shapes of a whole run's, so that each comparison with it is inconclusive and says
+    so, and its own checks (the trajectory, the divergence summary) say why.
+    """
+    n = planned_samples(tr) if tr.attrs.get("diverged") else tr.time.size
+    if tr.time.size < n:  # the shapes from the run padded with zeros, every value NaN
+        pad = {k: np.concatenate([v, np.zeros((v.shape[0], n - v.shape[1], *v.shape[2:]),
+                                              v.dtype)], axis=1)
+               for k, v in tr.data.items()}  # fmt: skip
+        whole = Trajectory(time=np.arange(n) * tr.sample_interval, data=pad, attrs=tr.attrs)
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return no_estimate(series_metrics(whole, profile, tau, segment))
     dt = tr.sample_interval
     e = tr["balancing_error"][..., 0].astype(float)
     f, s = metrics.power_spectrum(e, dt, segment=segment)

@@ -85,6 +85,11 @@ def trajectory_metrics(
     * ``tau_hat_avg``: the lag (s) of the largest value of the STCC averaged
       over all windows: the lag of the strongest average coupling, every window
       counting (it follows the delay tau where the median peak may not).
+
+    An engine run that stopped early (a non-finite state) is measured over what it
+    recorded: ``agreement`` over the span it shares with the reference, ``tau_hat`` and
+    the slopes NaN where it holds no STCC window (window + largest lag) or no Welch
+    segment (a quarter of the duration).
     """
     model = model or study.model
     n, dur = study.realizations, study.duration
@@ -105,33 +110,48 @@ def trajectory_metrics(
             model, params, min(dur, TRAJECTORY_WINDOW), n, seed, amplitude=amplitude,
             decimate=study.decimate, fields=("balancing_error",), threads=threads,
         )  # fmt: skip
-        k = ref.time.size
+        k = min(ref.time.size, tr.time.size)  # an engine run that stopped: its span
         ef = tr["balancing_error"][:, :k, 0].astype(float)
-        er = ref["balancing_error"][..., 0]
+        er = ref["balancing_error"][:, :k, 0]
         out["agreement"] = mt.relative_l2(ef, er, axis=1).tolist()
+    held = tr.time.size * dt  # s recorded: less than the duration where an engine run stopped
     if "tau_hat" in study.metrics:
-        vt, vb = tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0]
-        st = study.stcc
-        t, lags, r = mt.stcc(vt, vb, dt, st["window"], st["max_lag"], st["stride"])
-        # per-window level from the effective number of independent samples (Bartlett)
-        sig = (mt.stcc_significance_bartlett(vt, vb, dt, t, st["window"],
-                                             st["significance_z"])
-               if st["significance_z"] > 0 else 0.0)  # fmt: skip
-        th = mt.first_dominant_peak(r, lags, st["dominance"], sig)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no dominant peak
-            out["tau_hat"] = np.nanmedian(th, axis=-1).tolist()
-            out["tau_hat_fraction"] = np.isfinite(th).mean(axis=-1).tolist()
-            avg = np.nanmean(r, axis=-2)  # (realisations, lags)
-        out["tau_hat_avg"] = [float(lags[np.nanargmax(a)]) if np.isfinite(a).any()
-                              else float("nan") for a in avg]  # fmt: skip
-    if "slopes" in study.metrics:
+        out.update(stcc_lag_metrics(tr, study.stcc, n, held))
+    if "slopes" in study.metrics and held < dur / 4:  # not one Welch segment
+        for name in ("slope_low", "slope_high", "slope_low_se", "slope_high_se"):
+            out[name] = float("nan")
+    elif "slopes" in study.metrics:
         f, sp = mt.power_spectrum(e, dt, segment=dur / 4)
         fit = mt.fit_two_power_laws(f, sp, 8.0 / dur, 20.0, n_bins=16, n_bootstrap=50)
         out["slope_low"] = fit.slope_low
         out["slope_high"] = fit.slope_high
         out["slope_low_se"] = fit.slope_low_se
         out["slope_high_se"] = fit.slope_high_se
+    return out
+
+
+def stcc_lag_metrics(tr, st: dict[str, Any], n: int, held: float) -> dict[str, list]:
+    """``tau_hat``, ``tau_hat_fraction`` and ``tau_hat_avg`` per realisation
+    (:func:`trajectory_metrics`) with the study's ``[stcc]`` table ``st``; NaN where the
+    ``held`` s of the run hold no window (window + largest lag: an engine run that
+    stopped)."""
+    if held < st["window"] + st["max_lag"]:
+        return {name: [float("nan")] * n for name in ("tau_hat", "tau_hat_fraction", "tau_hat_avg")}
+    dt = tr.sample_interval
+    vt, vb = tr["tip_velocity"][..., 0], tr["base_velocity"][..., 0]
+    t, lags, r = mt.stcc(vt, vb, dt, st["window"], st["max_lag"], st["stride"])
+    # per-window level from the effective number of independent samples (Bartlett)
+    sig = (mt.stcc_significance_bartlett(vt, vb, dt, t, st["window"], st["significance_z"])
+           if st["significance_z"] > 0 else 0.0)  # fmt: skip
+    th = mt.first_dominant_peak(r, lags, st["dominance"], sig)
+    out: dict[str, list] = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN: no dominant peak
+        out["tau_hat"] = np.nanmedian(th, axis=-1).tolist()
+        out["tau_hat_fraction"] = np.isfinite(th).mean(axis=-1).tolist()
+        avg = np.nanmean(r, axis=-2)  # (realisations, lags)
+    out["tau_hat_avg"] = [float(lags[np.nanargmax(a)]) if np.isfinite(a).any()
+                          else float("nan") for a in avg]  # fmt: skip
     return out
 
 
