@@ -297,5 +297,7 @@ def test_an_engine_gone_non_finite_fails_its_checks_and_every_stage_runs(monkeyp
     assert status["agreement.lambda1.single.beta=19.5"] == FAIL
     assert status["agreement.trajectory.coupled"] == FAIL
     assert status["agreement.log10_rms.single"] == INCONCLUSIVE  # no estimate: NaN
+    (rms,) = [c for c in res["checks"] if c["name"] == "agreement.log10_rms.single"]
+    assert "the engine's run stopped between t = 0.5 and 0.6 s (non-finite state" in rms["details"]
     stages = {d["stage"] for d in res["divergence"]}
     assert {"time-series agreement", "lambda1 agreement", "rod-length study"} <= stages

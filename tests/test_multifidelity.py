@@ -359,3 +359,38 @@ def test_head_cuts_the_per_realisation_attributes():
     assert h.data["balancing_error"].shape == (2, 3, 1)
     assert h.attrs["max_abs_angle"] == [0.1, 0.2] and h.attrs["left_small_angle"] == [False] * 2
     assert h.attrs["seed"] == 7 and tr.attrs["max_abs_angle"] == [0.1, 0.2, 0.3, 0.4]
+
+
+def test_an_engine_run_that_stopped_has_no_estimate_and_is_not_run_again(monkeypatch):
+    """An engine whose series run stops at a non-finite state (0.5 s into 45 s): its
+    metrics are NaN with a whole run's shapes, so every comparison is inconclusive and
+    says why, the trajectory check fails, and the plain allocation is not run after it
+    (it would only stop again: one engine call, not two)."""
+    from cip.runner import MujocoRollout
+    from validation.checks import agreement
+
+    real = MujocoRollout.__call__
+
+    def nan_after(self, state, ctrl, out):
+        real(self, state, ctrl, out)
+        done = getattr(self, "steps", 0)
+        self.steps = done + ctrl.shape[1]
+        if self.steps > 500:
+            out[0, max(500 - done, 0) :] = np.nan
+
+    monkeypatch.setattr(MujocoRollout, "__call__", nan_after)
+    profile = _tiny_profile()
+    calls = _as_batch(monkeypatch, False, agreement.run_full)
+    with pytest.warns(RuntimeWarning, match="run stopped"):
+        checks, data = agreement.series_model_checks(
+            *_series_args(profile)[0], profile, **_series_args(profile)[1]
+        )
+    assert calls == [profile.mf_engine_realizations]
+    status = {c.name: c.status for c in checks}
+    assert status["agreement.trajectory.coupled"] == "fail"
+    for m in ("log10_rms", "spectrum_bands", "stcc_peak_median", "log10_velocity_sd"):
+        assert status[f"agreement.{m}.coupled"] == "inconclusive"
+    assert "the engine's run stopped between t = 0.5 and 0.6 s" in checks[0].details
+    mf = data["metrics_full"]
+    assert np.isnan(mf.log_rms).all() and mf.band_log_power.shape == (3, 8)
+    assert data["full"].time.size < data["reduced"].time.size

@@ -276,6 +276,17 @@ def planned_samples(tr: Trajectory) -> int:
     return -(-round(float(a["duration"]) / float(a["dt"])) // int(a.get("decimate", 1)))
 
 
+def stop_note(tr: Trajectory) -> str:
+    """``""``, or where an engine run stopped early (``attrs["diverged"]``) a clause for a
+    check's details: when, why, and that its metrics have no estimate."""
+    d = tr.attrs.get("diverged")
+    if not d:
+        return ""
+    a, b = d["time_window"]
+    return (f"; the engine's run stopped between t = {a:.4g} and {b:.4g} s ({d['reason']} in "
+            f"realisation {d['realization']}): its metrics have no estimate")  # fmt: skip
+
+
 def no_estimate(m: SeriesMetrics) -> SeriesMetrics:
     """``m`` with every estimate NaN, its coordinates (band centres, frequencies, STCC
     window times, the fit's frequency range) kept: the shapes of a whole run's metrics."""
@@ -722,7 +733,7 @@ def series_model_checks(
     details = (
         f"beta {beta}, amplitude {amplitude:g} m{series_amplitude_note(profile, precision)}, "
         f"{profile.series_realizations} x {profile.series_duration:g} s, seed {scenario.seed}, "
-        f"largest |theta| {max_angle:.2g} rad{fallback}"
+        f"largest |theta| {max_angle:.2g} rad{fallback}{stop_note(full)}"
     )
     series = compare_series(model, mf, mr, "", details, mt, me)
     if nearest:  # the twin's metrics do not judge another discretisation
@@ -1021,10 +1032,12 @@ def multifidelity_series(
         f"(same noise, nested; plain sampling: {n_plain} x {duration:g} s), seed {seed}, "
         f"largest |theta| {float(np.max(full.attrs['max_abs_angle'])):.2g} rad, cost ratio "
         f"engine : twin + reduced w = {w:.3g} (measured), MFMC-optimal m/n for the RMS's "
-        f"rho: {mfe.optimal_ratio(rho, max(w, 1e-9)):.3g}"
+        f"rho: {mfe.optimal_ratio(rho, max(w, 1e-9)):.3g}{stop_note(full)}"
     )
     checks, ratio = compare_series_mf(model, ms, profile, n_plain, details)
-    if not ratio <= 1.0:
+    # an engine run that stopped (a non-finite state) has no estimate at any allocation:
+    # running the plain one as well would only stop again
+    if not ratio <= 1.0 and not full.attrs.get("diverged"):
         return PlainFallback(f"multifidelity not used: with the engine on {n} and the twin "
                              f"on {m} realisations an interval would be {ratio:.3g} times "
                              f"plain sampling's (log10 RMS rho {rho:.6g}), so the engine "
