@@ -340,6 +340,11 @@ def test_a_non_finite_benettin_run_is_an_infinite_exponent_and_the_others_run_on
     np.testing.assert_array_equal(got.per_realization[good], clean.per_realization[good])
     assert np.isnan(got.diverged_at[good]).all()
     assert "non-finite in" in got.divergence() and got.as_dict()["diverged_at"][bad[0]] > 0
+    from validation.checks.divergence import lyapunov_events
+
+    ev = lyapunov_events(got.per_realization, diverged_at=got.diverged_at)  # `lyapunov`'s
+    assert [(e.realization, e.time) for e in ev] == [(k, pytest.approx(end)) for k in bad]
+    assert ev[0].reason == "non-finite state (Benettin run)"
     part = got.part(slice(1, 2), 21.0, 5)  # a batch's part keeps its realisations' times
     assert part.diverged_at is None and got.part(slice(2, 4), 21.0, 5).divergence() == (
         None

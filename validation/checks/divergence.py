@@ -138,13 +138,20 @@ def trajectory_events(tr: Trajectory, length: float) -> list[Event]:
     return events
 
 
-def lyapunov_events(per_realization: np.ndarray, first_realization: int = 0) -> list[Event]:
-    """Realisations whose lambda1 came out non-finite (their run overflowed)."""
+def lyapunov_events(
+    per_realization: np.ndarray, first_realization: int = 0, diverged_at: np.ndarray | None = None
+) -> list[Event]:
+    """Realisations whose lambda1 came out non-finite (their run overflowed); with
+    ``diverged_at`` (s per realisation, NaN where finite: an engine's
+    :class:`cipcore.results.LyapunovResult`) the time its state went non-finite."""
     lam = np.asarray(per_realization, dtype=float)
+    at = np.full(lam.shape, np.nan) if diverged_at is None else np.asarray(diverged_at, float)
     return [
-        Event(int(r) + first_realization, DIVERGED, "non-finite lambda1", None, float("nan"), "")
+        Event(int(r) + first_realization, DIVERGED,
+              "non-finite lambda1" if np.isnan(at[r]) else "non-finite state (Benettin run)",
+              None if np.isnan(at[r]) else float(at[r]), float("nan"), "")
         for r in np.flatnonzero(~np.isfinite(lam))
-    ]
+    ]  # fmt: skip
 
 
 def summary(events: list[Event], n_realizations: int, limit: int = 5) -> str | None:

@@ -68,7 +68,7 @@ def cmd_lyapunov(a: argparse.Namespace) -> int:
     check_lyapunov_duration(a, params.tau, params.dt)
     engine = get_engine(a.engine)
     res = run_engine(a, engine.lyapunov, params, **engine_options(a, engine))
-    events = lyapunov_events(res.per_realization)
+    events = lyapunov_events(res.per_realization, diverged_at=res.diverged_at)
     d = res.as_dict()
     d["engine"] = a.engine
     d["divergence"] = [e.as_dict() for e in events]
