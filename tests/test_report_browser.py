@@ -233,3 +233,43 @@ def test_figures_keep_the_report_order_though_drawn_as_their_stages_finish(smoke
     rod = [f"fig_rod_length_{m}.png" for m in ROD_METRICS]
     assert names[len(PAPER_FIGURES) : len(PAPER_FIGURES) + len(rod)] == rod
     assert not list((out / "stages").glob("figures-*job.pkl"))
+
+
+def test_figures_and_captions_name_the_engine_that_ran(smoke_run, tmp_path, monkeypatch):
+    """The engine's data is labelled with its family in every figure and caption that
+    shows it (they all said "MuJoCo" whatever the engine); the clips stay MuJoCo's."""
+    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+
+    import validation.run as run
+    from validation.profiles import PROFILES
+    from validation.report.captions import figure_caption
+    from validation.report.document import markdown
+
+    assert run.engine_label("mujoco") == "MuJoCo"
+    out, _ = smoke_run
+    kept = []
+    monkeypatch.setattr(plt, "close", lambda fig=None: kept.append(fig))
+    monkeypatch.setattr(Figure, "savefig", lambda self, fname, **kw: Path(fname).touch())
+    monkeypatch.setattr(run, "engine_label", lambda engine: {"drake": "Drake"}[engine])
+    files = run._figures(tmp_path, _stage_state(out), PROFILES["smoke"], engine="drake")
+    monkeypatch.undo()
+    shows = {"fig_lLe.png", "fig_Be.png", "fig_pwsp.png", "fig_sccpeak_pdf.png",
+             "fig_amplitude_scan.png"}  # fmt: skip
+    for fig, path in zip(kept, files, strict=True):
+        texts = [fig._suptitle.get_text()] if fig._suptitle is not None else []
+        for ax in fig.axes:
+            texts.append(ax.get_title())
+            legend = ax.get_legend() or (fig.legends[0] if fig.legends else None)
+            texts += [t.get_text() for t in legend.get_texts()] if legend else []
+        words = " ".join(texts)
+        assert "MuJoCo" not in words, path.name
+        assert ("Drake" in words) == (path.name in shows), path.name
+        plt.close(fig)
+    res = json.loads((out / "results.json").read_text())
+    res["engine"]["capabilities"]["family"] = "Drake"
+    md = markdown(res)
+    assert "## Rod-length study (Drake," in md
+    assert "Drake (dashed)" in figure_caption("fig_Be.png", res["settings"], "Drake")
+    assert "simulated by MuJoCo" in figure_caption("clip_inside_small_angle.gif", res["settings"],
+                                                   "Drake")  # fmt: skip

@@ -98,7 +98,7 @@ def test_damaged_stage_record_is_a_stated_recompute_of_that_stage(counted, tmp_p
 def test_deleted_figure_is_redrawn(counted, tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
 
-    def figures(out_dir, state, profile):
+    def figures(out_dir, state, profile, engine="mujoco"):
         counted["figures"] += 1
         (out_dir / "fig_x.png").write_bytes(b"png")
         return [out_dir / "fig_x.png"]

@@ -378,8 +378,8 @@ def run_validation(
         if not figures:
             return []
         if rendering or drawing:  # started beside the stages
-            return _figures(out_dir, state, profile, rendering, drawing)
-        return _figures(out_dir, state, profile)
+            return _figures(out_dir, state, profile, rendering, drawing, engine)
+        return _figures(out_dir, state, profile, engine=engine)
 
     def write_partial() -> None:
         """``results.json`` of the stages in ``done`` (saved with their pickles), partial."""
@@ -419,7 +419,7 @@ def run_validation(
             # each paper figure drawn as soon as the stages it draws have finished
             ready = ready_paper_figures(done, sent) if worker else []
             if ready:
-                drawing = start_paper_figures(out_dir, state, worker, ready) or drawing
+                drawing = start_paper_figures(out_dir, state, worker, ready, engine) or drawing
                 sent.extend(ready)
             if worker and name == "rod-length study":
                 drawing = worker
@@ -512,9 +512,11 @@ FIGURE_DATA_STAGES = {"lyapunov_points": "lambda1 agreement", "series": "time-se
                       "peaks": "STCC and spectra"}  # fmt: skip
 
 
-def _paper_figure_data(state: dict[str, Any], keys: Any = None) -> dict[str, Any]:
+def _paper_figure_data(state: dict[str, Any], keys: Any = None, engine: str = "mujoco"
+                       ) -> dict[str, Any]:  # fmt: skip
     """The keyword arguments ``keys`` (default all) of
-    :func:`validation.report.plots.paper_figures` from the stages."""
+    :func:`validation.report.plots.paper_figures` from the stages, and the label of the
+    registered ``engine``'s data (its family, e.g. "Drake")."""
     keys = FIGURE_DATA_STAGES if keys is None else keys
     get = {"lyapunov_points": lambda: state["lambda1 agreement"][1]["lyapunov"],
            "series": lambda: state["time-series agreement"][1],
@@ -523,7 +525,13 @@ def _paper_figure_data(state: dict[str, Any], keys: Any = None) -> dict[str, Any
            "curve": lambda: state["lambda1 curve"],
            "rms": lambda: state["RMS and velocity"][1],
            "peaks": lambda: state["STCC and spectra"][1]}  # fmt: skip
-    return {k: get[k]() for k in keys}
+    return {"engine": engine_label(engine), **{k: get[k]() for k in keys}}
+
+
+def engine_label(engine: str) -> str:
+    """How the figures name the registered ``engine``'s data: its family
+    (:attr:`cipcore.engine.Capabilities.family`: "MuJoCo", "Drake", ...), else its name."""
+    return agreement.rigid_engine(engine).capabilities.family or engine
 
 
 def ready_paper_figures(done: Any, sent: Any = ()) -> list[str]:
@@ -549,7 +557,7 @@ def spawn_figure_worker(out_dir: Path) -> tuple[Any, Path, Any, Any]:
 
 def start_paper_figures(
     out_dir: Path, state: dict[str, Any], worker: tuple[Any, Path, Any, Any] | None = None,
-    names: list[str] | None = None,
+    names: list[str] | None = None, engine: str = "mujoco",
 ) -> tuple[Any, Path, Any, Any]:  # fmt: skip
     """Draw the paper figures ``names`` (default every one) in the child process
     ``worker`` (:func:`spawn_figure_worker`, started here if None) while the later
@@ -560,7 +568,8 @@ def start_paper_figures(
     drawing = worker or spawn_figure_worker(out_dir)
     names = list(PAPER_FIGURES) if names is None else list(names)
     keys = sorted({k for name in names for k in PAPER_FIGURES[name]})
-    _send_figure_job(drawing, out_dir, "paper", {"only": names, **_paper_figure_data(state, keys)})
+    _send_figure_job(drawing, out_dir, "paper",
+                     {"only": names, **_paper_figure_data(state, keys, engine)})  # fmt: skip
     return drawing
 
 
@@ -642,7 +651,7 @@ def finish_paper_figures(
 def _figures(
     out_dir: Path, state: dict[str, Any], profile: Profile,
     rendering: list[tuple[Path, Any, Any]] | None = None,
-    drawing: tuple[Any, Path, Any, Any] | None = None,
+    drawing: tuple[Any, Path, Any, Any] | None = None, engine: str = "mujoco",
 ) -> list[Path]:  # fmt: skip
     """Every figure and clip; ``rendering`` and ``drawing``: the clips' and the figures'
     processes where already started (else the figures are drawn here).  The figure
@@ -657,7 +666,7 @@ def _figures(
             # matplotlib: imported by runs that draw figures only
             from validation.report import plots
 
-            files = plots.paper_figures(out_dir, _paper_figure_data(state))
+            files = plots.paper_figures(out_dir, _paper_figure_data(state, engine=engine))
             files += rod_figures(out_dir, rod_ds)
         else:  # drawn beside the last stages, in the order above (both jobs sent)
             files = finish_paper_figures(drawing)

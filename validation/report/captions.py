@@ -34,13 +34,16 @@ def _rod_study(s: dict[str, Any]) -> dict[str, Any]:
     return base
 
 
-def figure_caption(name: str, settings: dict[str, Any]) -> str:
+def figure_caption(name: str, settings: dict[str, Any], engine: str = "MuJoCo") -> str:
     """The caption of figure file ``name`` of a ``cip-validate run`` with ``settings``.
 
     Parameters
     ----------
     name : the file name as the run writes it (``fig_rms.png``, ``clip_inside_small_angle.gif``).
     settings : the run's profile (``results["settings"]``).
+    engine : the validated engine as the figures name it (its family,
+        ``results["engine"]["capabilities"]["family"]``); the clips are MuJoCo's renders
+        whatever the engine.
 
     Returns
     -------
@@ -67,7 +70,7 @@ def figure_caption(name: str, settings: dict[str, Any]) -> str:
             "mean over realisations with its 95 % confidence band, "
             f"{2 * s['lyapunov_realizations']} realisations x {2 * s['lyapunov_duration']:g} s "
             f"at each of the gains {_seq(s['lyapunov_curve_gains'])}, seed {seed} (stream "
-            "'curve'). Squares: MuJoCo (rigid-body CIP, the same noise as the reduced model at "
+            f"'curve'). Squares: {engine} (rigid-body CIP, the same noise as the reduced model at "
             f"that gain) with 95 % CIs, {s['lyapunov_realizations']} realisations x "
             f"{s['lyapunov_duration']:g} s (stream 'lyapunov'). Dotted: the critical gain beta* "
             f"where lambda1 = 5e-4, bisected on the reduced model ({s['beta_star_realizations']}"
@@ -77,7 +80,7 @@ def figure_caption(name: str, settings: dict[str, Any]) -> str:
         "fig_Be.png": (
             "Balancing error e(t) (m) of one realisation (realisation 0): Delta x of the single "
             "balancer (top) and Delta q1 of the coupled one (bottom), the reduced model (solid) "
-            "and MuJoCo (dashed) under the same noise, deep in the small-angle regime. "
+            f"and {engine} (dashed) under the same noise, deep in the small-angle regime. "
             f"Run: {small}. "
             + _paper("Be", "the balancing errors; the paper shows longer, larger runs")
         ),
@@ -130,13 +133,14 @@ def figure_caption(name: str, settings: dict[str, Any]) -> str:
         "fig_sccpeak_pdf.png": (
             "Probability density (1/s) of the first peak point tau_hat, single (triangles) and "
             "coupled controller 1 (squares), histograms with 0.01 s bins. Solid: the reduced "
-            f"model, every window of every realisation of the {long}; dashed: MuJoCo at small "
+            f"model, every window of every realisation of the {long}; dashed: {engine} at small "
             f"amplitude ({small}). " + _paper("sccpeak:pdf", "the densities of tau_hat")
         ),
         "fig_amplitude_scan.png": (
-            "Relative L2 distance between the balancing errors of MuJoCo and the reduced model "
+            f"Relative L2 distance between the balancing errors of {engine} and the reduced "
+            "model "
             "under the same noise (over the first "
-            f"{s['scan_duration']:g} s), against the largest |theta| MuJoCo reached, for "
+            f"{s['scan_duration']:g} s), against the largest |theta| {engine} reached, for "
             f"initial balancing errors {_seq(s['scan_amplitudes'])} m; "
             f"{s['scan_realizations']} realisations per amplitude, {_beta()}, seed {seed} "
             "(stream 'scan'). The models must agree (below 1 %) inside the small-angle regime "

@@ -195,6 +195,8 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
     """The function is long because it is the report's template, section by section."""
     from validation.cli.checklog import check_value
 
+    # the validated engine as the figures name it (its family); MuJoCo in older results
+    engine = ((results.get("engine") or {}).get("capabilities") or {}).get("family") or "MuJoCo"
     lines = [
         "# cipval validation report",
         "",
@@ -249,7 +251,7 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
     if results.get("rod_length"):
         lines += [
             "",
-            "## Rod-length study (MuJoCo, coupled, same noise at every point)",
+            f"## Rod-length study ({engine}, coupled, same noise at every point)",
             "",
             "Per point: the median over realisations [5 %, 95 % of them] (these quantities are "
             "heavy-tailed; a mean with its interval would cross 0), or the mean +- its 95 % "
@@ -266,7 +268,8 @@ def markdown(results: dict, regression: list[Check] | None = None) -> str:
             )
     lines += divergence_section(results)
     if results["figures"]:
-        lines += ["", "## Figures", "", *figure_lines(results["figures"], results["settings"])]
+        lines += ["", "## Figures", "",
+                  *figure_lines(results["figures"], results["settings"], engine)]  # fmt: skip
     lines += ["", "## Settings", "", f"Profile {results['profile']}, grouped by the stage "
               "that uses them (s, m, Hz as stated).", "", "| stage | settings |",
               "|---|---|"]  # fmt: skip
@@ -284,11 +287,12 @@ def _spread(row: dict, key: str) -> str:
     return _fmt(row.get(key)) + (f" +- {ci:.2g}" if ci is not None else "")
 
 
-def figure_lines(names: list[str], settings: dict) -> list[str]:
-    """Markdown of the run's figures and clips: each image, then ``*Figure k.* caption``."""
+def figure_lines(names: list[str], settings: dict, engine: str = "MuJoCo") -> list[str]:
+    """Markdown of the run's figures and clips: each image, then ``*Figure k.* caption``
+    (the engine's data named ``engine``, :func:`validation.report.captions.figure_caption`)."""
     lines = []
     for k, f in enumerate(names, 1):
-        caption = figure_caption(f, settings).replace("\n", " ")
+        caption = figure_caption(f, settings, engine).replace("\n", " ")
         lines += [f"![Figure {k}: {f}]({f})", "", f"*Figure {k}.* {caption}", ""]
     return lines
 

@@ -54,8 +54,9 @@ def _finish(
 DELAY_LINE = {"color": "k", "lw": 0.6, "ls": ":", "label": r"delay $\tau$ = 0.1 s"}
 
 
-def fig_lle(curve, points, bstar, path: Path) -> Path:
-    """Fig. 3: lambda1 vs beta, reduced curve with 95 % band, MuJoCo points, beta*."""
+def fig_lle(curve, points, bstar, path: Path, engine: str = "MuJoCo") -> Path:
+    """Fig. 3: lambda1 vs beta, reduced curve with 95 % band, the engine's points (labelled
+    ``engine``, its family: :attr:`cipcore.engine.Capabilities.family`), beta*."""
     fig, ax = plt.subplots(figsize=(6.4, 4.2), constrained_layout=True)
     colours = {"single": "C0", "coupled": "C3"}
     for model, arr in curve.items():
@@ -75,7 +76,7 @@ def fig_lle(curve, points, bstar, path: Path) -> Path:
             continue
         ax.errorbar(row["beta"], f["lambda1"], yerr=[[f["lambda1"] - lo], [hi - f["lambda1"]]],
                     fmt="s", mfc="none", color=colours[row["model"]], capsize=3)  # fmt: skip
-    ax.plot([], [], "ks", mfc="none", label="MuJoCo (95% CI)")
+    ax.plot([], [], "ks", mfc="none", label=f"{engine} (95% CI)")
     if gone:
         ax.plot([], [], " ", label="no finite engine estimate (not drawn): " + ", ".join(gone))
     ax.axhline(5e-4, color="k", lw=0.8, ls="--", label=r"$\lambda_1 = 5\times10^{-4}$")
@@ -86,25 +87,25 @@ def fig_lle(curve, points, bstar, path: Path) -> Path:
     return _save(fig, path)
 
 
-def fig_be(series, path: Path) -> Path:
+def fig_be(series, path: Path, engine: str = "MuJoCo") -> Path:
     """Fig. 4: balancing error of one realisation, single and coupled, both engines."""
     fig, axes = plt.subplots(2, 1, figsize=(7, 4.6), sharex=True, constrained_layout=True)
     for ax, model in zip(axes, MODEL_NAMES, strict=True):
         full, red = series[model]["full"], series[model]["reduced"]
         ax.plot(red.time, red["balancing_error"][0, :, 0], lw=0.8, label="reduced")
-        ax.plot(full.time, full["balancing_error"][0, :, 0], lw=0.8, ls="--", label="MuJoCo")
+        ax.plot(full.time, full["balancing_error"][0, :, 0], lw=0.8, ls="--", label=engine)
         ax.set_ylabel(
             r"$\Delta x$ (m)" if get_model(model).n_controllers == 1 else r"$\Delta q_1$ (m)"
         )
         ax.set_title(f"{model}, beta = {red.attrs['beta']}", fontsize=9)
         ax.legend(fontsize=8)
     axes[-1].set_xlabel("t (s)")
-    fig.suptitle("Balancing error of realisation 0, reduced model and MuJoCo (same noise)",
+    fig.suptitle(f"Balancing error of realisation 0, reduced model and {engine} (same noise)",
                  fontsize=10)  # fmt: skip
     return _save(fig, path)
 
 
-def fig_pwsp(series, peaks, path: Path) -> Path:
+def fig_pwsp(series, peaks, path: Path, engine: str = "MuJoCo") -> Path:
     """Fig. 5: power spectra of the balancing errors with the two-power-law fits."""
     fig, axes = plt.subplots(1, 2, figsize=(9, 4.4), constrained_layout=True)
     for ax, model in zip(axes, MODEL_NAMES, strict=True):
@@ -117,7 +118,7 @@ def fig_pwsp(series, peaks, path: Path) -> Path:
             ax.fill_between(d["f"], q[1], q[3], color="grey", alpha=0.3, lw=0,
                             label="long run: central 50 %")  # fmt: skip
             ax.loglog(d["f"], q[2], color="k", lw=0.6, label="long run: median")
-        for eng, key in (("reduced", "metrics_reduced"), ("MuJoCo", "metrics_full")):
+        for eng, key in (("reduced", "metrics_reduced"), (engine, "metrics_full")):
             f, s = series[model][key].spectrum
             ax.loglog(f, s.mean(axis=0) / s.mean() * d["S"].mean(), lw=0.8, alpha=0.7,
                       label=f"{eng}, small amplitude (scaled)")  # fmt: skip
@@ -241,8 +242,8 @@ def fig_sccpeak(peaks, path: Path) -> Path:
     return _save(fig, path)
 
 
-def fig_sccpeak_pdf(peaks, series, path: Path) -> Path:
-    """Fig. 10: densities of tau_hat, single vs coupled (reduced and MuJoCo)."""
+def fig_sccpeak_pdf(peaks, series, path: Path, engine: str = "MuJoCo") -> Path:
+    """Fig. 10: densities of tau_hat, single vs coupled (reduced and the engine)."""
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     for model, c, mk in (("single", "C0", "^"), ("coupled", "C3", "s")):
         d = peaks[f"peaks_{model}"]
@@ -254,13 +255,13 @@ def fig_sccpeak_pdf(peaks, series, path: Path) -> Path:
         if th.size:
             h, _ = np.histogram(th, bins=e, density=True)
             ax.plot(0.5 * (e[1:] + e[:-1]), h, mk + "--", color=c, ms=3, mfc="none",
-                    label=f"MuJoCo, {model} (small amplitude)")  # fmt: skip
+                    label=f"{engine}, {model} (small amplitude)")  # fmt: skip
     ax.axvline(0.1, **DELAY_LINE)
     title = r"Densities of the first peak point $\hat\tau$"
     return _finish(fig, ax, path, (r"$\hat\tau$ (s)", "density (1/s)"), title)
 
 
-def fig_scan(scan, path: Path) -> Path:
+def fig_scan(scan, path: Path, engine: str = "MuJoCo") -> Path:
     """Amplitude scan: relative L2 distance full vs reduced against the largest angle."""
     fig, ax = plt.subplots(figsize=(6.4, 3.8), constrained_layout=True)
     for model, c in (("single", "C0"), ("coupled", "C3")):
@@ -273,7 +274,7 @@ def fig_scan(scan, path: Path) -> Path:
     ax.axvline(small_angle_limit(), color="grey", lw=0.6, ls=":", label="small-angle limit")
     ax.axvline(np.pi / 2, color="k", lw=0.6, ls="-.", label=r"$|\theta| = \pi/2$: fallen")
     labels = (r"largest $|\theta|$ reached (rad)", "relative L2 distance of balancing errors")
-    title = "MuJoCo against the reduced model by initial amplitude (same noise)"
+    title = f"{engine} against the reduced model by initial amplitude (same noise)"
     return _finish(fig, ax, path, labels, title)
 
 
@@ -284,8 +285,10 @@ def paper_figures(out_dir: Path, data: Mapping[str, Any], *, only=None) -> list[
 
     ``data`` holds the stages' results by name: ``curve`` (lambda1 over the gains),
     ``lyapunov_points``, ``bstar``, ``series``, ``rms``, ``peaks``, ``scan``; a figure
-    whose data is missing is not asked for.
+    whose data is missing is not asked for.  ``engine`` (optional) labels the engine's
+    data: its family (:attr:`cipcore.engine.Capabilities.family`, default "MuJoCo").
     """
+    engine = data.get("engine") or "MuJoCo"
     curve, lyapunov_points, bstar = (
         data.get("curve"),
         data.get("lyapunov_points"),
@@ -303,15 +306,15 @@ def paper_figures(out_dir: Path, data: Mapping[str, Any], *, only=None) -> list[
 
     length = pendulum_length(BalanceParams(beta=PAPER_BETA["single"]))  # L = g / alpha
     draw = {
-        "fig_lLe.png": lambda p: fig_lle(curve, lyapunov_points, bstar, p),
-        "fig_Be.png": lambda p: fig_be(series, p),
-        "fig_pwsp.png": lambda p: fig_pwsp(series, peaks, p),
+        "fig_lLe.png": lambda p: fig_lle(curve, lyapunov_points, bstar, p, engine),
+        "fig_Be.png": lambda p: fig_be(series, p, engine),
+        "fig_pwsp.png": lambda p: fig_pwsp(series, peaks, p, engine),
         "fig_rms.png": lambda p: fig_rms(rms, p, length),
         "fig_velo.png": lambda p: fig_velo(rms, p),
         "fig_scc.png": lambda p: fig_scc(peaks, series, p),
         "fig_sccpeak.png": lambda p: fig_sccpeak(peaks, p),
-        "fig_sccpeak_pdf.png": lambda p: fig_sccpeak_pdf(peaks, series, p),
-        "fig_amplitude_scan.png": lambda p: fig_scan(scan, p),
+        "fig_sccpeak_pdf.png": lambda p: fig_sccpeak_pdf(peaks, series, p, engine),
+        "fig_amplitude_scan.png": lambda p: fig_scan(scan, p, engine),
     }
     unknown = set(only or ()) - set(draw)
     if unknown:
