@@ -122,6 +122,31 @@ def pytest_xdist_make_scheduler(config, log):
     return Grouped(config, log)
 
 
+@pytest.fixture
+def mujoco_nan_after(monkeypatch):
+    """``nan_after(at, row=0)``: from now on in this test, MuJoCo's rollout
+    (:class:`cip.runner.MujocoRollout`) returns non-finite states for realisation ``row``
+    of each of its blocks from global step ``at`` on (each rollout counts its own steps):
+    an engine whose state goes non-finite mid-run, wherever the suite steps MuJoCo."""
+    import numpy as np
+
+    from cip.runner import MujocoRollout
+
+    real = MujocoRollout.__call__
+
+    def nan_after(at: int, row: int = 0) -> None:
+        def call(self, state, ctrl, out):
+            real(self, state, ctrl, out)
+            done = getattr(self, "nan_steps", 0)
+            self.nan_steps = done + ctrl.shape[1]
+            if at - done < ctrl.shape[1] and row < out.shape[0]:
+                out[row, max(at - done, 0) :] = np.nan
+
+        monkeypatch.setattr(MujocoRollout, "__call__", call)
+
+    return nan_after
+
+
 @pytest.fixture(scope="session")
 def smoke_run_once(tmp_path_factory):
     """One ``cip-validate run --profile smoke`` (figures included) for the whole session:

@@ -264,29 +264,17 @@ def test_divergence_stops_and_keeps_what_was_computed():
         np.testing.assert_array_equal(again["balancing_error"], tr["balancing_error"])
 
 
-def test_a_non_finite_state_mid_chunk_returns_only_the_finite_samples_before_it():
+def test_a_non_finite_state_mid_chunk_returns_only_the_finite_samples_before_it(
+    mujoco_nan_after,
+):
     """An engine whose state goes non-finite inside a chunk (Exudyn at the quick profile's
     largest scan amplitude, seed 7) stops there: the trajectory ends with the last sample
     before the first non-finite state, not at the chunk's end with NaNs in it, and the
     warning names the engine."""
-    from cip.runner import MujocoRollout
-
     at = 1234  # the state after this global step is non-finite in realisation 1
-
-    class NaNFrom(MujocoRollout):
-        def __init__(self, *args):
-            super().__init__(*args)
-            self.steps = 0
-
-        def __call__(self, state, ctrl, out):
-            super().__call__(state, ctrl, out)
-            k = at - self.steps
-            if k < ctrl.shape[1]:
-                out[1, max(k, 0) :] = np.nan
-            self.steps += ctrl.shape[1]
-
+    mujoco_nan_after(at, row=1)
     scn = Scenario("single", BalanceParams(beta=21.0), 3.0, 2, amplitude=0.01)
-    body = RigidBody(backend=NaNFrom, name="nan-engine")
+    body = RigidBody(name="nan-engine")
     with pytest.warns(DivergenceWarning, match="nan-engine run stopped: non-finite state"):
         tr = simulate_full(scn, body=body, recording=Recording(decimate=5),
                            execution=Execution(threads=1))  # fmt: skip
@@ -295,31 +283,10 @@ def test_a_non_finite_state_mid_chunk_returns_only_the_finite_samples_before_it(
     assert tr.attrs["diverged"]["reason"] == "non-finite state"
 
 
-class _NaNFrom:
-    """A MuJoCo backend whose realisation ``row`` (of its block) turns non-finite after
-    global step ``at``, made for one (at, row)."""
-
-    @staticmethod
-    def make(at: int, row: int):
-        from cip.runner import MujocoRollout
-
-        class NaNFrom(MujocoRollout):
-            def __init__(self, *args):
-                super().__init__(*args)
-                self.steps = 0
-
-            def __call__(self, state, ctrl, out):
-                super().__call__(state, ctrl, out)
-                k = at - self.steps
-                if k < ctrl.shape[1] and row < out.shape[0]:
-                    out[row, max(k, 0) :] = np.nan
-                self.steps += ctrl.shape[1]
-
-        return NaNFrom
-
-
 @pytest.mark.parametrize("threads", [1, 2])
-def test_a_non_finite_benettin_run_is_an_infinite_exponent_and_the_others_run_on(threads):
+def test_a_non_finite_benettin_run_is_an_infinite_exponent_and_the_others_run_on(
+    threads, mujoco_nan_after
+):
     """An engine whose Benettin run goes non-finite in one realisation: that realisation's
     exponent is +inf and the time is recorded (the end of the renormalisation interval),
     the run goes on (it used to raise FloatingPointError and crash the lambda1 stage), and
@@ -329,7 +296,8 @@ def test_a_non_finite_benettin_run_is_an_infinite_exponent_and_the_others_run_on
     scn = Scenario("single", p, 3.0, 4, seed=5)
     clean = lyapunov_full(scn, execution=Execution(threads=1))
     assert clean.diverged_at is None and "diverged_at" not in clean.as_dict()
-    body = RigidBody(backend=_NaNFrom.make(1234, 0), name="nan-engine")
+    mujoco_nan_after(1234)
+    body = RigidBody(name="nan-engine")
     with pytest.warns(DivergenceWarning, match="nan-engine lambda1 run: non-finite state"):
         got = lyapunov_full(scn, body=body, execution=Execution(threads=threads))
     bad = [0] if threads == 1 else [0, 2]

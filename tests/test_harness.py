@@ -271,24 +271,15 @@ def test_divergence_searches_each_stage_once_per_run(monkeypatch):
     assert calls == ["amplitude scan"] * 3
 
 
-def test_an_engine_gone_non_finite_fails_its_checks_and_every_stage_runs(monkeypatch, tmp_path):
+def test_an_engine_gone_non_finite_fails_its_checks_and_every_stage_runs(
+    mujoco_nan_after, tmp_path
+):
     """An engine whose state turns NaN 0.5 s into every run (in the first realisation of
     each call's block): every stage finishes and the run fails (exit 1), not crashes
     (exit 4). Before, the rod-length study (shapes of a stopped run against the
     reference's), the time series (an STCC window longer than the stopped run) and lambda1
     (FloatingPointError) each crashed the run."""
-    from cip.runner import MujocoRollout
-
-    real = MujocoRollout.__call__
-
-    def nan_after(self, state, ctrl, out):
-        real(self, state, ctrl, out)
-        done = getattr(self, "steps", 0)
-        self.steps = done + ctrl.shape[1]
-        if self.steps > 500:
-            out[0, max(500 - done, 0) :] = np.nan
-
-    monkeypatch.setattr(MujocoRollout, "__call__", nan_after)
+    mujoco_nan_after(500)  # MuJoCo's state NaN in each block's first realisation
     with pytest.warns(RuntimeWarning):
         code = main(["run", "--profile", "smoke", "--no-figures", "--out", str(tmp_path)])
     res = json.loads((tmp_path / "results.json").read_text())

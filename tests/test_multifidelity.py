@@ -361,24 +361,16 @@ def test_head_cuts_the_per_realisation_attributes():
     assert h.attrs["seed"] == 7 and tr.attrs["max_abs_angle"] == [0.1, 0.2, 0.3, 0.4]
 
 
-def test_an_engine_run_that_stopped_has_no_estimate_and_is_not_run_again(monkeypatch):
+def test_an_engine_run_that_stopped_has_no_estimate_and_is_not_run_again(
+    monkeypatch, mujoco_nan_after
+):
     """An engine whose series run stops at a non-finite state (0.5 s into 45 s): its
     metrics are NaN with a whole run's shapes, so every comparison is inconclusive and
     says why, the trajectory check fails, and the plain allocation is not run after it
     (it would only stop again: one engine call, not two)."""
-    from cip.runner import MujocoRollout
     from validation.checks import agreement
 
-    real = MujocoRollout.__call__
-
-    def nan_after(self, state, ctrl, out):
-        real(self, state, ctrl, out)
-        done = getattr(self, "steps", 0)
-        self.steps = done + ctrl.shape[1]
-        if self.steps > 500:
-            out[0, max(500 - done, 0) :] = np.nan
-
-    monkeypatch.setattr(MujocoRollout, "__call__", nan_after)
+    mujoco_nan_after(500)  # MuJoCo's state NaN in each block's first realisation
     profile = _tiny_profile()
     calls = _as_batch(monkeypatch, False, agreement.run_full)
     with pytest.warns(RuntimeWarning, match="run stopped"):

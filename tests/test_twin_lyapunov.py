@@ -224,7 +224,7 @@ def test_an_engine_duration_out_of_range_is_one_line() -> None:
 
 @pytest.mark.parametrize("mf", [3, 0])
 def test_an_engine_gone_non_finite_fails_lambda1_and_the_run_goes_on(
-    monkeypatch, tmp_path, mf
+    mujoco_nan_after, tmp_path, mf
 ) -> None:
     """An engine whose Benettin state goes non-finite (the multifidelity allocation and the
     plain one): the lambda1 check fails and says where, the stage's row keeps the
@@ -232,19 +232,10 @@ def test_an_engine_gone_non_finite_fails_lambda1_and_the_run_goes_on(
     crash with FloatingPointError and lose the rest of the run)."""
     import numpy as np
 
-    from cip.runner import MujocoRollout
     from cip.simulate import DivergenceWarning
     from validation.run import _stage_divergence
 
-    real = MujocoRollout.__call__
-
-    def nan_after_2s(self, state, ctrl, out):
-        real(self, state, ctrl, out)
-        self.steps = getattr(self, "steps", 0) + ctrl.shape[1]
-        if self.steps > 2000:
-            out[0] = np.nan
-
-    monkeypatch.setattr(MujocoRollout, "__call__", nan_after_2s)
+    mujoco_nan_after(2000)  # MuJoCo's state NaN in each block's first realisation
     with pytest.warns(DivergenceWarning, match="mujoco lambda1 run: non-finite state"):
         (check,), data = lyapunov_checks(_profile(mf_engine_realizations=mf), 1)
     assert check.status == "fail" and check.values["full"]["value"] == np.inf
